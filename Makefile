@@ -1,0 +1,33 @@
+# Set-up and entry points. `make run` and `make test` each build .venv when needed.
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+# Constraints apply to build environments too, so no dependency can move torch off the CPU wheel.
+export PIP_CONSTRAINT := $(CURDIR)/constraints.txt
+
+.PHONY: install run test lint bench clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml constraints.txt
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --upgrade "pip>=24"
+	$(PY) -m pip install "torch==2.13.0"
+	$(PY) -m pip install -e ".[all]"
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(PY) -m rdd demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+lint: $(STAMP)
+	$(PY) -m ruff check .
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench_decompose.py
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache

@@ -1,0 +1,1 @@
+"""RLBench-style task suite in pybullet."""

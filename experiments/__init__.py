@@ -1,0 +1,1 @@
+"""Experiment pipeline, evaluation and tables."""

@@ -1,0 +1,1 @@
+"""LLaVA-family high-level planner."""

@@ -1,0 +1,1 @@
+"""RDD: retrieval-based demonstration decomposition (Yan et al., NeurIPS 2025)."""

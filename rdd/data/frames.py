@@ -1,0 +1,93 @@
+"""Lazily loaded frame sequences: an episode's images are read only when asked for."""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class FrameSource(Protocol):
+    """A sequence of uint8 RGB frames (H, W, 3) that loads on demand."""
+
+    def __len__(self) -> int: ...
+
+    def load(self, indices: Sequence[int] | None = None) -> np.ndarray:
+        """Frames at ``indices`` (all when None) as a uint8 array (N, H, W, 3)."""
+        ...
+
+    def fingerprint(self) -> str:
+        """A content hash that changes whenever the frames change (used for cache keys)."""
+        ...
+
+
+class ArrayFrames:
+    """Frames already in memory."""
+
+    def __init__(self, array: np.ndarray):
+        array = np.asarray(array)
+        if array.ndim != 4 or array.shape[-1] != 3:
+            raise ValueError(f"frames must have shape (T, H, W, 3), got {array.shape}")
+        if array.dtype != np.uint8:
+            raise ValueError(f"frames must be uint8, got {array.dtype}")
+        self._array = array
+        self._fingerprint: str | None = None
+
+    def __len__(self) -> int:
+        return int(self._array.shape[0])
+
+    def load(self, indices: Sequence[int] | None = None) -> np.ndarray:
+        """Frames at ``indices`` (all when None)."""
+        if indices is None:
+            return self._array
+        return self._array[np.asarray(indices, dtype=np.int64)]
+
+    def fingerprint(self) -> str:
+        """SHA-256 of shape and bytes."""
+        if self._fingerprint is None:
+            h = hashlib.sha256(str(self._array.shape).encode())
+            h.update(np.ascontiguousarray(self._array).tobytes())
+            self._fingerprint = h.hexdigest()
+        return self._fingerprint
+
+
+class ImageFileFrames:
+    """One image file per frame (e.g. RLBench's ``front_rgb/N.png``), decoded with PIL on demand."""
+
+    def __init__(self, paths: Sequence[str | Path]):
+        self.paths = [Path(p) for p in paths]
+        self._fingerprint: str | None = None
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def load(self, indices: Sequence[int] | None = None) -> np.ndarray:
+        """Decode the frames at ``indices`` (all when None)."""
+        from PIL import Image
+
+        idx = range(len(self.paths)) if indices is None else indices
+        out = []
+        for i in idx:
+            path = self.paths[int(i)]
+            try:
+                with Image.open(path) as im:
+                    out.append(np.asarray(im.convert("RGB"), dtype=np.uint8))
+            except (OSError, ValueError) as exc:
+                raise ValueError(f"cannot read frame image {path}: {exc}") from exc
+        if not out:
+            return np.zeros((0, 0, 0, 3), dtype=np.uint8)
+        return np.stack(out)
+
+    def fingerprint(self) -> str:
+        """SHA-256 over the files' bytes in order."""
+        if self._fingerprint is None:
+            h = hashlib.sha256()
+            for p in self.paths:
+                h.update(p.name.encode())
+                h.update(p.read_bytes())
+            self._fingerprint = h.hexdigest()
+        return self._fingerprint

@@ -1,0 +1,1 @@
+"""Demonstration decomposers: RDD and the baselines."""

@@ -1,0 +1,36 @@
+"""The decomposer interface and its result type."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any
+
+from rdd.data.episode import Episode
+from rdd.segments import Segment, segments_to_keyframes
+
+
+@dataclass
+class Decomposition:
+    """A segmentation of one demonstration with optional per-segment details."""
+
+    segments: list[Segment]
+    scores: list[float] | None = None  # per-segment objective term J(I)
+    neighbours: list[dict[str, Any]] | None = None  # per-segment matched database entry
+    novelty: float | None = None  # RDD's Delta: mean interval score of the optimal partition
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def keyframes(self) -> list[int]:
+        """The keyframe ``end - 1`` of each segment."""
+        return segments_to_keyframes(self.segments)
+
+
+class Decomposer(ABC):
+    """Cuts a demonstration into sub-task segments."""
+
+    name: str = "decomposer"
+
+    @abstractmethod
+    def decompose(self, episode: Episode) -> Decomposition:
+        """Segment ``episode``."""

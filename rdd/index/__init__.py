@@ -1,0 +1,1 @@
+"""Nearest-neighbour retrieval backends over the sub-task database."""
