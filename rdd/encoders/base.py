@@ -12,6 +12,8 @@ class Encoder(ABC):
 
     name: str = "encoder"
     dim: int = 0
+    # Describes the input preprocessing (resize, crop, normalisation); part of every cache key.
+    preprocess_id: str = ""
 
     @property
     @abstractmethod

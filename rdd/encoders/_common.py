@@ -1,0 +1,122 @@
+"""Shared helpers for encoders: input validation, chunked torch inference, weight hashing."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from rdd.encoders.base import Encoder
+
+if TYPE_CHECKING:
+    import torch
+
+
+def check_images(images: np.ndarray, who: str) -> np.ndarray:
+    """``images`` as a uint8 (N, H, W, 3) array, or a ValueError naming the encoder and the shape."""
+    images = np.asarray(images)
+    if images.ndim == 3 and images.shape[-1] == 3:
+        raise ValueError(f"{who}: expected a batch (N, H, W, 3), got one image {images.shape}; add a batch axis")
+    if images.ndim != 4 or images.shape[-1] != 3:
+        raise ValueError(f"{who}: images must have shape (N, H, W, 3), got {images.shape}")
+    if images.dtype != np.uint8:
+        raise ValueError(f"{who}: images must be uint8 RGB, got dtype {images.dtype}")
+    return images
+
+
+def check_batch_size(batch_size: int, who: str) -> int:
+    """A positive int batch size or a ValueError naming the option."""
+    if int(batch_size) != batch_size or int(batch_size) < 1:
+        raise ValueError(f"{who}: option batch_size must be a positive integer, got {batch_size!r}")
+    return int(batch_size)
+
+
+@contextlib.contextmanager
+def torch_threads(num_threads: int | None) -> Iterator[None]:
+    """Run the block with ``num_threads`` intra-op torch threads (unchanged when None), then restore."""
+    import torch
+
+    if num_threads is None:
+        yield
+        return
+    if int(num_threads) != num_threads or int(num_threads) < 1:
+        raise ValueError(f"option num_threads must be a positive integer or null, got {num_threads!r}")
+    before = torch.get_num_threads()
+    torch.set_num_threads(int(num_threads))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def state_dict_hash(module: torch.nn.Module) -> str:
+    """SHA-256 over names, shapes, dtypes and bytes of every parameter and buffer, in key order."""
+    h = hashlib.sha256()
+    for key, tensor in sorted(module.state_dict().items()):
+        t = tensor.detach().cpu().contiguous()
+        h.update(key.encode())
+        h.update(str(tuple(t.shape)).encode())
+        h.update(str(t.dtype).encode())
+        # Viewing as bytes covers every dtype (bfloat16 included) without a numpy round trip.
+        h.update(t.reshape(-1).view(__import__("torch").uint8).numpy().tobytes())
+    return h.hexdigest()
+
+
+class TorchEncoder(Encoder):
+    """An encoder made of a numpy->tensor ``preprocess`` and a torch ``forward``, run in chunks.
+
+    Subclasses (or builders) supply the model; this class handles validation, batching, threads,
+    ``torch.inference_mode`` and the weights hash.
+    """
+
+    def __init__(
+        self,
+        *,
+        name: str,
+        dim: int,
+        model: torch.nn.Module,
+        preprocess: Callable[[np.ndarray], torch.Tensor],
+        forward: Callable[[torch.Tensor], torch.Tensor] | None = None,
+        preprocess_id: str,
+        batch_size: int = 32,
+        num_threads: int | None = None,
+        checkpoint: str | None = None,
+    ):
+        self.name = name
+        self.dim = int(dim)
+        self.model = model.eval()
+        self._preprocess = preprocess
+        self._forward = forward if forward is not None else model
+        self.preprocess_id = preprocess_id
+        self.batch_size = check_batch_size(batch_size, name)
+        self.num_threads = num_threads
+        self.checkpoint = checkpoint
+        self._weights_id: str | None = None
+
+    @property
+    def weights_id(self) -> str:
+        """SHA-256 of the loaded state dict (computed once, on first use)."""
+        if self._weights_id is None:
+            self._weights_id = state_dict_hash(self.model)
+        return self._weights_id
+
+    def encode(self, images: np.ndarray) -> np.ndarray:
+        """Embed uint8 images (N, H, W, 3) into float32 (N, dim), ``batch_size`` images at a time."""
+        import torch
+
+        images = check_images(images, self.name)
+        if images.shape[0] == 0:
+            return np.zeros((0, self.dim), dtype=np.float32)
+        outs = []
+        with torch_threads(self.num_threads), torch.inference_mode():
+            for start in range(0, images.shape[0], self.batch_size):
+                x = self._preprocess(images[start : start + self.batch_size])
+                y = self._forward(x)
+                y = y.reshape(y.shape[0], -1).float().cpu().numpy()
+                if y.shape[1] != self.dim:
+                    raise RuntimeError(f"{self.name}: model produced {y.shape[1]}-d features, expected {self.dim}")
+                outs.append(y)
+        return np.concatenate(outs, axis=0).astype(np.float32, copy=False)

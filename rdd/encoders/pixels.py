@@ -1,0 +1,60 @@
+"""``pixels``: area-downsampled raw pixels as a vector. No weights; a floor baseline and a fast test encoder."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+from rdd.encoders._common import check_batch_size, check_images, torch_threads
+from rdd.encoders.base import Encoder
+
+
+class PixelsEncoder(Encoder):
+    """Each image area-averaged to ``size`` x ``size``, scaled to [-1, 1] and flattened (3*size*size)."""
+
+    def __init__(self, size: int = 16, batch_size: int = 256, num_threads: int | None = None):
+        if int(size) != size or int(size) < 1:
+            raise ValueError(f"pixels: option size must be a positive integer, got {size!r}")
+        self.name = "pixels"
+        self.size = int(size)
+        self.dim = 3 * self.size * self.size
+        self.batch_size = check_batch_size(batch_size, self.name)
+        self.num_threads = num_threads
+        # Centring on 0 spreads cosine similarities; raw [0, 1] pixels would all sit in one orthant.
+        self.preprocess_id = f"area{self.size}x{self.size}/rgb/x*2-1"
+
+    @property
+    def weights_id(self) -> str:
+        """No weights: a hash of the encoder's definition, so it still separates cache entries."""
+        return hashlib.sha256(f"pixels-no-weights:{self.preprocess_id}".encode()).hexdigest()
+
+    def encode(self, images: np.ndarray) -> np.ndarray:
+        """Downsample uint8 images (N, H, W, 3) by area averaging to float32 vectors (N, 3*size*size)."""
+        import torch
+        import torch.nn.functional as F
+
+        images = check_images(images, self.name)
+        outs = []
+        with torch_threads(self.num_threads), torch.inference_mode():
+            for start in range(0, images.shape[0], self.batch_size):
+                x = torch.from_numpy(np.ascontiguousarray(images[start : start + self.batch_size]))
+                x = x.permute(0, 3, 1, 2).float() / 255.0
+                # Adaptive average pooling is exact area averaging when H, W are multiples of size.
+                x = F.adaptive_avg_pool2d(x, (self.size, self.size)) * 2.0 - 1.0
+                outs.append(x.reshape(x.shape[0], -1).numpy())
+        if not outs:
+            return np.zeros((0, self.dim), dtype=np.float32)
+        return np.concatenate(outs, axis=0).astype(np.float32, copy=False)
+
+
+def build(
+    size: int = 16,
+    batch_size: int = 256,
+    num_threads: int | None = None,
+    checkpoint: str | None = None,
+) -> PixelsEncoder:
+    """The ``pixels`` encoder; ``checkpoint`` must stay null (it has no weights)."""
+    if checkpoint is not None:
+        raise ValueError(f"pixels: has no weights, but option checkpoint={checkpoint!r} was given")
+    return PixelsEncoder(size=size, batch_size=batch_size, num_threads=num_threads)
