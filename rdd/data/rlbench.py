@@ -1,0 +1,229 @@
+"""RLBench episode folders (``<view>_rgb/N.png``, ``low_dim_obs.pkl``, ``variation_*.pkl``).
+
+RLBench pickles its ``Demo`` of ``Observation`` objects. Unpickling can run arbitrary code, so a
+restricted unpickler maps ``rlbench.*`` / ``pyrep.*`` classes to inert records, lets through only
+the handful of numpy functions that rebuild arrays, and refuses every other global.
+"""
+
+from __future__ import annotations
+
+import io
+import pickle
+import re
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rdd.data.episode import Episode
+from rdd.data.frames import ImageFileFrames
+
+LOW_DIM_FILE = "low_dim_obs.pkl"
+DESCRIPTIONS_FILE = "variation_descriptions.pkl"
+VARIATION_FILE = "variation_number.pkl"
+RECORD_MODULES = ("rlbench", "pyrep")
+
+
+class PickleRecord:
+    """An inert stand-in for a pickled rlbench/pyrep object: holds its state, runs nothing."""
+
+    _type: str = "record"
+
+    def __setstate__(self, state: Any) -> None:
+        # Objects pickled with __slots__ arrive as (dict, slots); keep both as attributes.
+        if isinstance(state, tuple) and len(state) == 2:
+            merged = dict(state[0] or {})
+            merged.update(state[1] or {})
+            state = merged
+        if isinstance(state, dict):
+            self.__dict__.update({str(k): v for k, v in state.items()})
+        else:
+            self.__dict__["_state"] = state
+
+    def __repr__(self) -> str:
+        return f"<{self._type} record: {sorted(self.__dict__)}>"
+
+
+_RECORD_CLASSES: dict[str, type] = {}
+
+
+def _record_class(module: str, name: str) -> type:
+    """One PickleRecord subclass per pickled class name (so records say what they were)."""
+    key = f"{module}.{name}"
+    if key not in _RECORD_CLASSES:
+        _RECORD_CLASSES[key] = type(name, (PickleRecord,), {"_type": key})
+    return _RECORD_CLASSES[key]
+
+
+def _numpy_allowed() -> dict[tuple[str, str], Any]:
+    """The exact numpy globals a pickled ndarray / numpy scalar needs, under old and new paths."""
+    from numpy._core import multiarray
+
+    allowed = {}
+    for mod in ("numpy.core.multiarray", "numpy._core.multiarray"):
+        allowed[(mod, "_reconstruct")] = multiarray._reconstruct
+        allowed[(mod, "scalar")] = multiarray.scalar
+    allowed[("numpy", "ndarray")] = np.ndarray
+    allowed[("numpy", "dtype")] = np.dtype
+    for name in ("Float64DType", "Float32DType", "Int64DType", "Int32DType", "BoolDType", "UInt8DType"):
+        if hasattr(np.dtypes, name):
+            allowed[("numpy.dtypes", name)] = getattr(np.dtypes, name)
+    return allowed
+
+
+class RestrictedUnpickler(pickle.Unpickler):
+    """Unpickler that maps rlbench/pyrep classes to records and refuses any other global."""
+
+    def __init__(self, file, source: str = "<pickle>"):
+        super().__init__(file)
+        self.source = source
+        self._numpy = _numpy_allowed()
+
+    def find_class(self, module: str, name: str) -> Any:
+        if (module, name) in self._numpy:
+            return self._numpy[(module, name)]
+        if module.split(".")[0] in RECORD_MODULES:
+            return _record_class(module, name)
+        raise pickle.UnpicklingError(
+            f"{self.source}: refusing to load global {module}.{name} "
+            f"(only {', '.join(m + '.*' for m in RECORD_MODULES)} and numpy arrays are allowed)"
+        )
+
+
+def restricted_load(path: str | Path) -> Any:
+    """Unpickle ``path`` with :class:`RestrictedUnpickler`."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise FileNotFoundError(f"cannot read {path}: {exc}") from exc
+    try:
+        return RestrictedUnpickler(io.BytesIO(data), source=str(path)).load()
+    except pickle.UnpicklingError:
+        raise
+    except Exception as exc:  # corrupt pickles raise many types; report the file either way
+        raise ValueError(f"{path}: not a readable RLBench pickle ({type(exc).__name__}: {exc})") from exc
+
+
+def _observations(demo: Any, path: Path) -> list[Any]:
+    """The list of Observation records inside an unpickled Demo (or a bare list)."""
+    if isinstance(demo, list):
+        return demo
+    obs = getattr(demo, "_observations", None)
+    if not isinstance(obs, list):
+        raise ValueError(f"{path}: expected an rlbench Demo with '_observations', got {demo!r}")
+    return obs
+
+
+def _stack(observations: list[Any], attr: str, path: Path, required: bool) -> np.ndarray | None:
+    values = [getattr(o, attr, None) for o in observations]
+    if all(v is None for v in values):
+        if required:
+            raise ValueError(f"{path}: observations have no {attr!r}")
+        return None
+    if any(v is None for v in values):
+        missing = next(i for i, v in enumerate(values) if v is None)
+        raise ValueError(f"{path}: observation {missing} lacks {attr!r}")
+    return np.asarray([np.asarray(v, dtype=np.float64) for v in values])
+
+
+def _frame_number(p: Path) -> int:
+    return int(p.stem)
+
+
+def available_views(directory: str | Path) -> list[str]:
+    """Camera views present as ``<view>_rgb`` folders."""
+    return sorted(p.name[: -len("_rgb")] for p in Path(directory).glob("*_rgb") if p.is_dir())
+
+
+def _view_frames(directory: Path, view: str, num_frames: int) -> ImageFileFrames:
+    folder = directory / f"{view}_rgb"
+    if not folder.is_dir():
+        raise FileNotFoundError(
+            f"{directory}: view {view!r} has no folder {folder.name}; "
+            f"available views: {available_views(directory)}"
+        )
+    files = [p for p in folder.iterdir() if p.suffix.lower() == ".png" and p.stem.isdigit()]
+    files.sort(key=_frame_number)
+    numbers = [_frame_number(p) for p in files]
+    if numbers != list(range(num_frames)):
+        raise ValueError(
+            f"{folder}: expected images 0.png..{num_frames - 1}.png to match {LOW_DIM_FILE}, "
+            f"found {len(files)} images"
+        )
+    return ImageFileFrames(files)
+
+
+def _task_name(directory: Path) -> str:
+    """``open_drawer`` from ``.../open_drawer/all_variations/episodes/episode0``."""
+    parts = directory.resolve().parts
+    if len(parts) >= 4 and parts[-2] == "episodes":
+        return parts[-4]
+    return ""
+
+
+def load_episode(
+    directory: str | Path, views: Sequence[str] | None = ("front", "wrist"), name: str | None = None
+) -> Episode:
+    """Read one RLBench episode folder; ``views=None`` takes every ``<view>_rgb`` folder."""
+    directory = Path(directory)
+    low_dim = directory / LOW_DIM_FILE
+    if not low_dim.is_file():
+        raise FileNotFoundError(f"{directory} is not an RLBench episode: {LOW_DIM_FILE} is missing")
+    observations = _observations(restricted_load(low_dim), low_dim)
+    if not observations:
+        raise ValueError(f"{low_dim}: the demo has no observations")
+    n = len(observations)
+    view_names = available_views(directory) if views is None else list(views)
+    frames = {v: _view_frames(directory, v, n) for v in view_names}
+    goal, descriptions, variation = "", [], None
+    if (directory / DESCRIPTIONS_FILE).is_file():
+        descriptions = restricted_load(directory / DESCRIPTIONS_FILE)
+        if not isinstance(descriptions, list) or not all(isinstance(d, str) for d in descriptions):
+            raise ValueError(f"{directory / DESCRIPTIONS_FILE}: expected a list of strings")
+        goal = descriptions[0] if descriptions else ""
+    if (directory / VARIATION_FILE).is_file():
+        variation = restricted_load(directory / VARIATION_FILE)
+        if not isinstance(variation, int):
+            raise ValueError(f"{directory / VARIATION_FILE}: expected an int, got {type(variation)}")
+    gripper = _stack(observations, "gripper_open", low_dim, required=True)
+    return Episode(
+        name=name or directory.name,
+        views=frames,
+        gripper_open=gripper.reshape(-1),
+        joint_positions=_stack(observations, "joint_positions", low_dim, required=False),
+        joint_velocities=_stack(observations, "joint_velocities", low_dim, required=False),
+        ee_poses=_stack(observations, "gripper_pose", low_dim, required=False),
+        goal=goal,
+        task=_task_name(directory),
+        meta={
+            "format": "rlbench",
+            "source": str(directory),
+            "variation_descriptions": descriptions,
+            "variation_number": variation,
+        },
+    )
+
+
+def _natural_key(p: Path) -> list:
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(p))]
+
+
+def load_episodes(path: str | Path, views: Sequence[str] | None = ("front", "wrist")) -> list[Episode]:
+    """Every RLBench episode under ``path`` (an episode folder, or any folder above episodes)."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"RLBench path {path} does not exist")
+    if (path / LOW_DIM_FILE).is_file():
+        return [load_episode(path, views)]
+    dirs = sorted({p.parent for p in path.rglob(LOW_DIM_FILE)}, key=_natural_key)
+    if not dirs:
+        raise FileNotFoundError(f"{path} holds no RLBench episodes (no */{LOW_DIM_FILE})")
+    names = [d.name for d in dirs]
+    unique = len(set(names)) == len(names)
+    # Prefix the task (and variation folder) only when bare episode names would collide.
+    return [
+        load_episode(d, views, name=None if unique else "/".join(d.relative_to(path).parts))
+        for d in dirs
+    ]

@@ -1,0 +1,97 @@
+"""The RLBench keyframe rule against a transcription of PerAct's list-of-observations loop."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rdd.data.episode import Episode
+from rdd.decomposers.expert import ExpertDecomposer, keypoint_discovery
+
+DATA = Path(__file__).resolve().parents[2] / "../shared/data/rlbench"
+
+
+def reference(demo, stopping_delta=0.1):
+    """PerAct's _keypoint_discovery over observation objects (Python list indexing and all)."""
+
+    def is_stopped(i, obs, buf):
+        next_is_not_final = i == (len(demo) - 2)
+        no_change = i < (len(demo) - 2) and (
+            obs.gripper_open == demo[i + 1].gripper_open
+            and obs.gripper_open == demo[i - 1].gripper_open
+            and demo[i - 2].gripper_open == demo[i - 1].gripper_open
+        )
+        small = np.allclose(obs.joint_velocities, 0, atol=stopping_delta)
+        return buf <= 0 and small and (not next_is_not_final) and no_change
+
+    kps, prev, buf = [], demo[0].gripper_open, 0
+    for i, obs in enumerate(demo):
+        stopped = is_stopped(i, obs, buf)
+        buf = 4 if stopped else buf - 1
+        if i != 0 and (obs.gripper_open != prev or i == len(demo) - 1 or stopped):
+            kps.append(i)
+        prev = obs.gripper_open
+    if len(kps) > 1 and (kps[-1] - 1) == kps[-2]:
+        kps.pop(-2)
+    return kps
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    t=st.integers(1, 40),
+    seed=st.integers(0, 100_000),
+    p_flip=st.sampled_from([0.0, 0.1, 0.4]),
+    p_still=st.sampled_from([0.2, 0.6, 0.9]),
+)
+def test_matches_reference_loop(t, seed, p_flip, p_still):
+    rng = np.random.default_rng(seed)
+    grip = np.cumsum(rng.random(t) < p_flip) % 2
+    vel = rng.normal(scale=0.5, size=(t, 3))
+    vel[rng.random(t) < p_still] *= 0.05
+    demo = [SimpleNamespace(gripper_open=float(g), joint_velocities=v) for g, v in zip(grip, vel, strict=True)]
+    assert keypoint_discovery(grip, vel) == reference(demo)
+
+
+def test_hand_made_case():
+    # Moving, stop at 5..7 (keyframe at 5 only: 4-frame buffer), close at 10, move to the end.
+    vel = np.ones((16, 2))
+    vel[5:8] = 0.0
+    grip = np.ones(16)
+    grip[10:] = 0.0
+    assert keypoint_discovery(grip, vel) == [5, 10, 15]
+
+
+@pytest.mark.skipif(not DATA.exists(), reason="../shared/data/rlbench is absent")
+def test_real_rlbench_episodes():
+    from rdd.data.rlbench import load_episodes
+
+    eps = load_episodes(DATA)
+    assert len(eps) == 6
+    by_name = {e.name: e for e in eps}
+    dec = ExpertDecomposer()
+    assert dec.decompose(by_name["episode0"]).keyframes == [70, 85, 124]
+    for e in eps:
+        demo = [SimpleNamespace(gripper_open=g, joint_velocities=v)
+                for g, v in zip(e.gripper_open, e.joint_velocities, strict=True)]
+        ks = dec.decompose(e).keyframes
+        assert ks == reference(demo) and len(ks) == 3 and ks[-1] == e.num_frames - 1
+
+
+def test_needs_signals():
+    ep = Episode(name="x", views={}, gripper_open=np.ones(5))
+    with pytest.raises(ValueError, match="joint_velocities nor ee_poses"):
+        ExpertDecomposer().decompose(ep)
+    ep = Episode(name="x", views={}, joint_velocities=np.ones((5, 2)))
+    with pytest.raises(ValueError, match="gripper_open"):
+        ExpertDecomposer().decompose(ep)
+    poses = np.zeros((12, 7))
+    poses[:, 0] = np.minimum(np.arange(12), 5)
+    ep = Episode(name="x", views={}, gripper_open=np.ones(12), ee_poses=poses)
+    out = ExpertDecomposer().decompose(ep)
+    assert out.meta["velocity_source"] == "ee" and out.segments[-1] == (out.segments[-1][0], 12)
+    assert out.keyframes[0] == 6  # first still frame after the motion stops

@@ -1,0 +1,69 @@
+"""RLBench reader: real episodes, and a pickle that tries to run code is refused."""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rdd.data.rlbench import RestrictedUnpickler, load_episode, load_episodes, restricted_load
+
+DATA = Path(__file__).resolve().parents[2] / "../shared/data/rlbench"
+
+
+class Exploit:
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        import os
+
+        return (os.system, (f"touch {self.marker}",))
+
+
+def test_malicious_pickle_is_refused(tmp_path):
+    marker = tmp_path / "pwned"
+    bad = tmp_path / "low_dim_obs.pkl"
+    bad.write_bytes(pickle.dumps([Exploit(marker)]))
+    with pytest.raises(pickle.UnpicklingError, match="refusing to load global"):
+        restricted_load(bad)
+    assert not marker.exists()
+    with pytest.raises(pickle.UnpicklingError, match="builtins.eval"):
+        RestrictedUnpickler(__import__("io").BytesIO(
+            b"cbuiltins\neval\n(S'1+1'\ntR.")).load()
+    with pytest.raises(pickle.UnpicklingError):
+        load_episode(tmp_path, views=())
+
+
+def test_numpy_arrays_survive():
+    import io
+
+    arr = np.arange(6, dtype=np.float32).reshape(2, 3)
+    out = RestrictedUnpickler(io.BytesIO(pickle.dumps({"a": arr, "s": np.float64(2.5)}))).load()
+    np.testing.assert_array_equal(out["a"], arr)
+    assert out["s"] == 2.5
+
+
+def test_missing_files_are_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match="low_dim_obs.pkl"):
+        load_episode(tmp_path)
+    with pytest.raises(FileNotFoundError, match="no RLBench episodes"):
+        load_episodes(tmp_path)
+
+
+@pytest.mark.skipif(not DATA.exists(), reason="../shared/data/rlbench is absent")
+def test_real_episodes():
+    eps = load_episodes(DATA)
+    assert [e.name for e in eps] == [f"episode{i}" for i in range(6)]
+    lengths = [e.num_frames for e in eps]
+    assert min(lengths) == 96 and max(lengths) == 125
+    e0 = eps[0]
+    assert e0.task == "open_drawer" and "drawer" in e0.goal
+    assert e0.frames("front", [0, 124]).shape == (2, 128, 128, 3)
+    assert e0.frames("wrist", [3]).dtype == np.uint8
+    assert e0.joint_velocities.shape == (125, 7) and e0.ee_poses.shape == (125, 7)
+    assert set(np.unique(e0.gripper_open)) <= {0.0, 1.0}
+    with pytest.raises(FileNotFoundError, match="available views"):
+        load_episode(DATA / "open_drawer/all_variations/episodes/episode0", views=("overhead",))
