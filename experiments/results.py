@@ -1,0 +1,123 @@
+"""The ``results.json`` every run writes, and reading a tree of them back.
+
+Per episode ``{task, seed, success, steps, instructions}``; per task success rates and their
+average; decomposition mIoU against the expert on the validation demonstrations; stage timings; the
+resolved config. Every table cell is computed from these files, so it traces back to seeds and
+episodes.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+RESULTS_FILE = "results.json"
+RESULTS_FORMAT = "rdd-results/1"
+
+
+@dataclass
+class EpisodeResult:
+    """One closed-loop evaluation episode."""
+
+    task: str
+    seed: int
+    success: bool
+    steps: int
+    instructions: list[str] = field(default_factory=list)
+    failure: str | None = None  # why it stopped without success (step limit, motion failure, ...)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return {
+            "task": self.task,
+            "seed": int(self.seed),
+            "success": bool(self.success),
+            "steps": int(self.steps),
+            "instructions": list(self.instructions),
+            "failure": self.failure,
+        }
+
+
+def per_task_success(episodes: Sequence[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """``{task: {success_rate, episodes, successes}}`` in task order of first appearance."""
+    out: dict[str, dict[str, float]] = {}
+    for ep in episodes:
+        row = out.setdefault(ep["task"], {"episodes": 0, "successes": 0})
+        row["episodes"] += 1
+        row["successes"] += int(bool(ep["success"]))
+    for row in out.values():
+        row["success_rate"] = row["successes"] / row["episodes"]
+    return out
+
+
+def average_success(per_task: dict[str, dict[str, float]]) -> float | None:
+    """Mean of the per-task success rates (each task weighs the same, as in the paper)."""
+    if not per_task:
+        return None
+    return sum(r["success_rate"] for r in per_task.values()) / len(per_task)
+
+
+@dataclass
+class RunRecord:
+    """One results.json with the fields tables need."""
+
+    path: Path
+    data: dict[str, Any]
+
+    @property
+    def status(self) -> str:
+        """``ok``, ``skipped`` or ``failed``."""
+        return str(self.data.get("status", "ok"))
+
+    @property
+    def experiment(self) -> str:
+        """The experiment config the run used (``quick``, ``table_main``, ...)."""
+        return str(self.data.get("choices", {}).get("experiment") or "none")
+
+    @property
+    def seed(self) -> int:
+        """The run's seed."""
+        return int(self.data.get("seed", 0))
+
+    @property
+    def method(self) -> str:
+        """Label of the variant this run measures: its overrides other than seed (or its decomposer)."""
+        if self.data.get("label"):
+            return str(self.data["label"])
+        return method_label(self.data.get("overrides", []), self.data.get("choices", {}))
+
+
+def method_label(overrides: Iterable[str], choices: dict[str, Any]) -> str:
+    """``decomposer=rdd,encoder=liv`` -> ``rdd, liv``; falls back to the decomposer choice."""
+    parts = []
+    for ov in overrides:
+        key, _, value = str(ov).lstrip("+~").partition("=")
+        if key in {"seed", "experiment"} or key.startswith("hydra") or key.startswith("paths."):
+            continue
+        if key.startswith(("eval.", "wandb.", "threads", "print_table", "tasks")):
+            continue
+        parts.append(value if "." not in key else f"{key.rsplit('.', 1)[-1]}={value}")
+    if parts:
+        return ", ".join(parts)
+    return str(choices.get("decomposer", "run"))
+
+
+def load_runs(root: Path) -> list[RunRecord]:
+    """Every results.json below ``root`` (sorted by path), with a clear error for a corrupt one."""
+    root = Path(root)
+    if not root.exists():
+        raise FileNotFoundError(f"--runs {root}: no such directory")
+    runs = []
+    for path in sorted(root.rglob(RESULTS_FILE)):
+        try:
+            with open(path) as fh:
+                data = json.load(fh)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"corrupt results file {path}: {exc}") from exc
+        if not isinstance(data, dict) or data.get("format") != RESULTS_FORMAT:
+            raise ValueError(f"{path}: not a results file of format {RESULTS_FORMAT!r}")
+        runs.append(RunRecord(path, data))
+    return runs

@@ -1,0 +1,109 @@
+"""Tables from synthetic results.json files whose expected cells are worked out by hand."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from experiments.results import RESULTS_FORMAT, per_task_success
+from experiments.tables import average_ranks, main, write_tables
+
+
+def _write_run(root: Path, name: str, method: str, seed: int, success: dict[str, list[bool]],
+               experiment: str = "table_main", miou: dict[str, float] | None = None,
+               status: str = "ok", reason: str = "") -> None:
+    episodes = [
+        {"task": task, "seed": i, "success": s, "steps": 3, "instructions": ["a", "b"]}
+        for task, outcomes in success.items() for i, s in enumerate(outcomes)
+    ]
+    data = {
+        "format": RESULTS_FORMAT,
+        "status": status,
+        "reason": reason,
+        "seed": seed,
+        "choices": {"experiment": experiment, "decomposer": method},
+        "overrides": [f"decomposer={method}", f"seed={seed}"],
+        "episodes": episodes,
+        "per_task": per_task_success(episodes) if status == "ok" else None,
+    }
+    if miou is not None:
+        data["decomposition"] = {"miou": sum(miou.values()) / len(miou), "per_task": miou,
+                                 "num_demos": 3}
+    path = root / name / "results.json"
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps(data))
+
+
+def test_average_ranks_ties_share_mean_rank():
+    assert average_ranks([0.5, 0.9, 0.5, 0.1]) == [2.5, 1.0, 2.5, 4.0]
+    assert average_ranks([1.0, 1.0, 1.0]) == [2.0, 2.0, 2.0]
+
+
+def test_success_table_cells_match_hand_computation(tmp_path: Path):
+    # Two methods, two seeds, two tasks, two episodes each.
+    # seed 0: A: t1 1.0, t2 0.5 -> avg 0.75; B: t1 0.5, t2 0.5 -> avg 0.5
+    # seed 1: A: t1 0.5, t2 0.0 -> avg 0.25; B: t1 1.0, t2 0.0 -> avg 0.5
+    _write_run(tmp_path, "0", "A", 0, {"t1": [True, True], "t2": [True, False]}, miou={"t1": 0.8, "t2": 0.6})
+    _write_run(tmp_path, "1", "B", 0, {"t1": [True, False], "t2": [False, True]}, miou={"t1": 0.4, "t2": 0.4})
+    _write_run(tmp_path, "2", "A", 1, {"t1": [False, True], "t2": [False, False]}, miou={"t1": 0.6, "t2": 0.6})
+    _write_run(tmp_path, "3", "B", 1, {"t1": [True, True], "t2": [False, False]}, miou={"t1": 0.2, "t2": 0.4})
+    _write_run(tmp_path, "4", "C", 0, {}, status="skipped", reason="no LIV weights at /x/liv/model.pt")
+    md, written = write_tables(tmp_path, tmp_path / "out")
+    success_md = md.split("decomposition mIoU")[0]
+    lines = {line.split(" | ")[0].strip("| *"): line
+             for line in success_md.splitlines() if line.startswith("| ")}
+    # A: avg over seeds (0.75, 0.25) -> 50.0 ± 35.4 (sample std of 75 and 25 = 35.36)
+    assert "50.0 ± 35.4" in lines["A"]
+    # B: (0.5, 0.5) -> 50.0 ± 0.0
+    assert "50.0 ± 0.0" in lines["B"]
+    # Ranks. seed 0: t1 A1 B2; t2 tie 1.5/1.5 -> A 1.25, B 1.75.
+    #        seed 1: t1 A2 B1; t2 tie -> A 1.75, B 1.25. Means: A 1.50 ± 0.35, B 1.50 ± 0.35.
+    assert "1.50 ± 0.35" in lines["A"] and "1.50 ± 0.35" in lines["B"]
+    # Per-task column t1 for A: (1.0, 0.5) -> 75.0 ± 35.4
+    assert lines["A"].split(" | ")[3] == "75.0 ± 35.4"
+    # mIoU table: A avg (0.7, 0.6) -> 65.0 ± 7.1 ; B (0.4, 0.3) -> 35.0 ± 7.1
+    miou_lines = [ln for ln in md.split("decomposition mIoU")[1].splitlines() if ln.startswith("| ")]
+    assert any(ln.startswith("| **A** | **65.0 ± 7.1**") or ln.startswith("| A | **65.0 ± 7.1**")
+               for ln in miou_lines)
+    assert "no LIV weights" in md
+    names = {p.name for p in written}
+    assert {"table_main.md", "table_main.tex", "table_main_success.png"} <= names
+    tex = (tmp_path / "out" / "table_main.tex").read_text()
+    assert r"\toprule" in tex and r"\midrule" in tex and r"\bottomrule" in tex
+    assert r"50.0 $\pm$ 35.4" in tex
+
+
+def test_one_table_per_experiment_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    _write_run(tmp_path, "a/0", "rdd", 0, {"t1": [True]}, experiment="abl_alpha")
+    _write_run(tmp_path, "b/0", "rdd", 0, {"t1": [False]}, experiment="necessity")
+    assert main(["--runs", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "## abl_alpha" in out and "## necessity" in out
+    assert (tmp_path / "tables" / "abl_alpha.md").is_file()
+
+
+def test_speed_table_and_plot(tmp_path: Path):
+    path = tmp_path / "s" / "results.json"
+    path.parent.mkdir()
+    rows = [{"frames": 100, "seconds_with_max_len": 0.1, "seconds_without_max_len": 0.2},
+            {"frames": 400, "seconds_with_max_len": 0.4, "seconds_without_max_len": 3.2}]
+    path.write_text(json.dumps({"format": RESULTS_FORMAT, "status": "ok", "seed": 0,
+                                "choices": {"experiment": "speed"}, "overrides": [],
+                                "speed": {"max_len": 100, "rows": rows}}))
+    md, written = write_tables(tmp_path)
+    assert "| 400 | 0.400 | 3.200 | 8.0x |" in md
+    assert any(p.name == "speed_speed.png" for p in written)
+
+
+def test_bad_inputs_name_the_file(tmp_path: Path):
+    with pytest.raises(FileNotFoundError, match="no such directory"):
+        write_tables(tmp_path / "missing")
+    with pytest.raises(FileNotFoundError, match="no results.json"):
+        write_tables(tmp_path)
+    bad = tmp_path / "x" / "results.json"
+    bad.parent.mkdir()
+    bad.write_text("{not json")
+    with pytest.raises(ValueError, match=str(bad)):
+        write_tables(tmp_path)
