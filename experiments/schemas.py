@@ -1,0 +1,113 @@
+"""Typed schema of the harness configuration, registered in Hydra's ConfigStore.
+
+The primary config (``conf/config.yaml``) starts its defaults list with ``base_config`` (the
+``RunConfig`` dataclass below), so a misspelt or mistyped top-level key
+(``sed=1``, ``eval.episodes_per_task=many``, ``mode=trian``) fails when Hydra composes the config,
+before any work starts. The component groups (decomposer, encoder, ...) are ``_target_`` nodes whose
+fields are checked against their target's signature by ``experiments.instantiate.check_component``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any
+
+from hydra.core.config_store import ConfigStore
+
+
+class Mode(Enum):
+    """What one run does."""
+
+    hierarchical = "hierarchical"  # full pipeline and closed-loop evaluation (success rates)
+    decompose = "decompose"  # decompose the validation demos only (mIoU against the expert)
+    speed = "speed"  # solver wall time versus number of frames, with and without L_max
+
+
+@dataclass
+class DataConfig:
+    """How many scripted demonstrations each stage gets."""
+
+    train_episodes_per_task: int = 4  # expert-segmented: policy training set and sub-task database
+    val_episodes_per_task: int = 3  # M: demonstrations decomposed to finetune the planner
+    pretrain_episodes_per_task: int = 4  # base planner pretraining (pretraining tasks only)
+    # Tasks whose training sub-tasks fill the database; null = the run's evaluation tasks.
+    # abl_ood_beta decomposes tasks outside this list (out-of-distribution for RDD).
+    database_tasks: list[str] | None = None
+
+
+@dataclass
+class EvalConfig:
+    """Closed-loop evaluation: seeds come from the env's test split, disjoint from demo seeds."""
+
+    episodes_per_task: int = 2
+    max_steps: int = 12  # planner/policy keyframe steps before an episode counts as failed
+    # Evaluation episode i of run seed s uses test-split seed index s * seed_stride + i.
+    seed_stride: int = 1000
+
+
+@dataclass
+class SpeedConfig:
+    """The solver scaling measurement (mode=speed)."""
+
+    frames: list[int] = field(default_factory=lambda: [100, 200, 500, 1000])
+    max_len: int = 100
+    database_size: int = 2000
+    dim: int = 256
+    repeats: int = 1
+
+
+@dataclass
+class WandbConfig:
+    """Weights & Biases logging; ``offline`` needs no account, ``disabled`` skips it."""
+
+    mode: str = "offline"
+    project: str = "rdd-harness"
+    entity: str | None = None
+    group: str | None = None
+    tags: list[str] = field(default_factory=list)
+
+
+@dataclass
+class PathsConfig:
+    """Where cached stages live (shared by every run, so reruns do no work)."""
+
+    cache_dir: str = ".cache/rdd"
+
+
+@dataclass
+class RunConfig:
+    """Top-level schema of ``conf/config.yaml``."""
+
+    seed: int = 0
+    mode: Mode = Mode.hierarchical
+    # Evaluation tasks; null = every evaluation task of the env (pretraining tasks excluded).
+    tasks: list[str] | None = None
+    views: list[str] = field(default_factory=lambda: ["front", "wrist"])
+    # Torch threads per job; null = all cores for a single run, cores / parallel jobs in a sweep.
+    threads: int | None = None
+    # An unavailable component (e.g. an encoder without its weights) records a skipped run
+    # with the reason instead of failing (abl_encoder sweeps over encoders that may be absent).
+    skip_unavailable: bool = False
+    print_table: bool = True
+    data: DataConfig = field(default_factory=DataConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    speed: SpeedConfig = field(default_factory=SpeedConfig)
+    wandb: WandbConfig = field(default_factory=WandbConfig)
+    paths: PathsConfig = field(default_factory=PathsConfig)
+    # Component groups: ``_target_`` nodes filled from conf/<group>/<option>.yaml.
+    env: Any = None
+    encoder: Any = None
+    index: Any = None
+    decomposer: Any = None
+    labeler: Any = None
+    policy: Any = None
+    planner: Any = None
+
+
+def register_configs() -> None:
+    """Store the schema as ``base_config`` (idempotent)."""
+    ConfigStore.instance().store(name="base_config", node=RunConfig)
+
+
+register_configs()

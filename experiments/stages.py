@@ -1,0 +1,158 @@
+"""On-disk stage cache: each pipeline stage's output lives in a directory keyed by what made it.
+
+A stage's key is the SHA-256 of a canonical JSON "spec": the config entries that affect the stage
+plus the keys of the stages it consumes, so changing anything upstream changes every key below it.
+Outputs are built in a temporary directory and moved into place with ``os.replace`` (atomic), and a
+per-key file lock makes parallel sweep jobs that need the same stage build it once.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+# Bump when a stage's on-disk layout or meaning changes, so old entries are not reused.
+CACHE_FORMAT = 1
+SPEC_FILE = "spec.json"
+
+
+def canonical(obj: Any) -> Any:
+    """A JSON-ready copy of ``obj`` with stable ordering (OmegaConf nodes, paths, tuples, enums)."""
+    try:
+        from omegaconf import DictConfig, ListConfig, OmegaConf
+
+        if isinstance(obj, DictConfig | ListConfig):
+            obj = OmegaConf.to_container(obj, resolve=True, enum_to_str=True)
+    except ImportError:  # pragma: no cover - omegaconf is a harness dependency
+        pass
+    if isinstance(obj, dict):
+        return {str(k): canonical(v) for k, v in sorted(obj.items(), key=lambda kv: str(kv[0]))}
+    if isinstance(obj, list | tuple):
+        return [canonical(v) for v in obj]
+    if isinstance(obj, Path):
+        return str(obj)
+    if hasattr(obj, "value") and hasattr(obj, "name") and type(obj).__module__ != "builtins":
+        return canonical(obj.value)  # Enum
+    if isinstance(obj, float | int | str | bool) or obj is None:
+        return obj
+    raise TypeError(f"cannot put {type(obj).__name__} into a stage cache key: {obj!r}")
+
+
+def spec_key(spec: dict[str, Any]) -> str:
+    """SHA-256 (first 16 hex digits) of the canonical JSON of ``spec``."""
+    text = json.dumps(canonical({"format": CACHE_FORMAT, **spec}), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclass
+class StageTiming:
+    """Wall time of one stage and whether it came from the cache."""
+
+    seconds: float
+    cached: bool
+
+
+@dataclass
+class StageCache:
+    """A root directory of cached stages, ``<root>/<stage>/<key>/``."""
+
+    root: Path
+    timings: dict[str, StageTiming] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.root = Path(self.root)
+
+    def path(self, stage: str, key: str) -> Path:
+        """Directory of a finished stage entry."""
+        return self.root / stage / key
+
+    @contextlib.contextmanager
+    def _lock(self, stage: str, key: str) -> Iterator[None]:
+        lock_dir = self.root / stage
+        lock_dir.mkdir(parents=True, exist_ok=True)
+        with open(lock_dir / f".{key}.lock", "w") as fh:
+            fcntl.flock(fh, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(fh, fcntl.LOCK_UN)
+
+    def get_or_build(
+        self,
+        stage: str,
+        spec: dict[str, Any],
+        build: Callable[[Path], None],
+        timing_name: str | None = None,
+    ) -> tuple[Path, str]:
+        """Directory holding ``stage``'s output for ``spec``, calling ``build(tmp_dir)`` on a miss.
+
+        Returns ``(directory, key)``. The timing goes to ``self.timings[timing_name or stage]``
+        (accumulated when a stage runs several times in one run, e.g. once per task).
+        """
+        key = spec_key(spec)
+        final = self.path(stage, key)
+        start = time.perf_counter()
+        cached = True
+        if not (final / SPEC_FILE).is_file():
+            with self._lock(stage, key):
+                if not (final / SPEC_FILE).is_file():  # another job may have built it meanwhile
+                    cached = False
+                    tmp = final.parent / f".tmp-{key}-{os.getpid()}-{time.time_ns()}"
+                    tmp.mkdir(parents=True)
+                    try:
+                        build(tmp)
+                        with open(tmp / SPEC_FILE, "w") as fh:
+                            json.dump(canonical(spec), fh, indent=1, sort_keys=True)
+                        if final.exists():  # a stale, unfinished entry (no spec file)
+                            shutil.rmtree(final)
+                        os.replace(tmp, final)
+                    finally:
+                        if tmp.exists():
+                            shutil.rmtree(tmp, ignore_errors=True)
+        self._record(timing_name or stage, time.perf_counter() - start, cached)
+        return final, key
+
+    def _record(self, name: str, seconds: float, cached: bool) -> None:
+        prev = self.timings.get(name)
+        if prev is None:
+            self.timings[name] = StageTiming(seconds, cached)
+        else:
+            self.timings[name] = StageTiming(prev.seconds + seconds, prev.cached and cached)
+
+    @contextlib.contextmanager
+    def timed(self, name: str) -> Iterator[None]:
+        """Record the wall time of an uncached step (e.g. evaluation) under ``name``."""
+        start = time.perf_counter()
+        yield
+        self._record(name, time.perf_counter() - start, False)
+
+
+def write_json_atomic(path: Path, obj: Any) -> None:
+    """Write ``obj`` as indented JSON to ``path`` via a temporary file and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "w") as fh:
+        json.dump(obj, fh, indent=1)
+        fh.write("\n")
+    os.replace(tmp, path)
+
+
+def read_json(path: Path) -> Any:
+    """Load JSON, naming the file when it is missing or corrupt."""
+    try:
+        with open(path) as fh:
+            return json.load(fh)
+    except FileNotFoundError as exc:
+        raise FileNotFoundError(f"missing file {path}") from exc
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"corrupt JSON in {path}: {exc}") from exc

@@ -1,0 +1,81 @@
+"""Stage cache: keyed by spec, built once, atomic, and generic component instantiation."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from omegaconf import OmegaConf
+
+from experiments.instantiate import check_component, instantiate_component, wanted_providers
+from experiments.stages import StageCache, spec_key
+
+
+def test_stage_built_once_and_keyed_by_spec(tmp_path: Path):
+    cache = StageCache(tmp_path)
+    calls = []
+
+    def build(d: Path) -> None:
+        calls.append(d)
+        (d / "out.txt").write_text("x")
+
+    p1, k1 = cache.get_or_build("s", {"a": 1, "b": [1, 2]}, build)
+    p2, k2 = cache.get_or_build("s", {"b": [1, 2], "a": 1}, build)  # same spec, other order
+    assert (p1, k1) == (p2, k2) and len(calls) == 1
+    assert (p1 / "out.txt").read_text() == "x"
+    assert json.loads((p1 / "spec.json").read_text()) == {"a": 1, "b": [1, 2]}
+    assert cache.timings["s"].cached is False  # first call built it
+    p3, k3 = cache.get_or_build("s", {"a": 2, "b": [1, 2]}, build)
+    assert k3 != k1 and len(calls) == 2
+    # A fresh cache object (a rerun) finds the entry without building.
+    again = StageCache(tmp_path)
+    again.get_or_build("s", {"a": 1, "b": [1, 2]}, build)
+    assert len(calls) == 2 and again.timings["s"].cached is True
+
+
+def test_failed_build_leaves_nothing(tmp_path: Path):
+    cache = StageCache(tmp_path)
+
+    def boom(d: Path) -> None:
+        (d / "partial").write_text("half")
+        raise RuntimeError("stage failed")
+
+    with pytest.raises(RuntimeError, match="stage failed"):
+        cache.get_or_build("s", {"a": 1}, boom)
+    assert not cache.path("s", spec_key({"a": 1})).exists()
+    assert [p.name for p in (tmp_path / "s").iterdir() if not p.name.startswith(".")] == []
+
+
+def test_spec_key_rejects_objects():
+    with pytest.raises(TypeError, match="cannot put"):
+        spec_key({"a": object()})
+
+
+def test_runtime_objects_go_only_where_asked():
+    called = []
+
+    def provider():
+        called.append(1)
+        from rdd.encoders import load_encoder
+
+        return load_encoder("pixels", size=4)
+
+    providers = {"encoder": provider}
+    uniform = OmegaConf.create({"_target_": "rdd.decomposers.uniform.UniformDecomposer", "n_segments": 3})
+    assert wanted_providers(uniform, "decomposer", providers) == []
+    dec = instantiate_component(uniform, "decomposer", providers)
+    assert dec.n_segments == 3 and called == []
+    uvd = OmegaConf.create({"_target_": "rdd.decomposers.uvd.UVDDecomposer", "_partial_": True,
+                            "min_interval": 5})
+    assert wanted_providers(uvd, "decomposer", providers) == ["encoder"]
+    dec = instantiate_component(uvd, "decomposer", providers)
+    assert called == [1] and dec.encoder.name == "pixels"
+
+
+def test_unknown_option_is_a_clear_error():
+    node = OmegaConf.create({"_target_": "rdd.decomposers.uniform.UniformDecomposer", "n_segmnts": 3})
+    with pytest.raises(ValueError, match=r"decomposer.*n_segmnts"):
+        check_component(node, "decomposer")
+    with pytest.raises(ImportError, match="cannot import"):
+        check_component(OmegaConf.create({"_target_": "rdd.nope.Nothing"}), "decomposer")
