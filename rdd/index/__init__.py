@@ -1,1 +1,42 @@
-"""Nearest-neighbour retrieval backends over the sub-task database."""
+"""Nearest-neighbour retrieval backends: ``load_index(name, **options)`` resolves ``rdd.index.<name>``.
+
+Each backend is one module exposing ``build(**options) -> NearestIndex`` plus one
+``conf/index/<name>.yaml``; there is no central table to edit.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import re
+from pathlib import Path
+
+from rdd.index.base import NearestIndex
+
+_NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
+_NOT_BACKENDS = {"base"}
+
+
+def available_indexes() -> list[str]:
+    """Names of the backend modules in this package."""
+    return sorted(
+        info.name for info in pkgutil.iter_modules([str(Path(__file__).parent)])
+        if not info.ispkg and not info.name.startswith("_") and info.name not in _NOT_BACKENDS
+    )
+
+
+def load_index(name: str, **options) -> NearestIndex:
+    """Build the (unfitted) backend ``name`` (module ``rdd.index.<name>``) with ``options``."""
+    if not isinstance(name, str) or not _NAME_RE.match(name) or name not in available_indexes():
+        raise ValueError(f"unknown index backend {name!r}; available: {available_indexes()}")
+    module = importlib.import_module(f"{__name__}.{name}")
+    build = getattr(module, "build", None)
+    if not callable(build):
+        raise ValueError(f"index module rdd.index.{name} has no build(); available: {available_indexes()}")
+    index = build(**options)
+    if not isinstance(index, NearestIndex):
+        raise TypeError(f"rdd.index.{name}.build returned {type(index).__name__}, not a NearestIndex")
+    return index
+
+
+__all__ = ["NearestIndex", "available_indexes", "load_index"]

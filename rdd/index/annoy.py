@@ -1,0 +1,88 @@
+"""Annoy backend (the paper's setting): angular metric, ``n_trees`` random-projection trees.
+
+Annoy's angular distance is ``sqrt(2 (1 - cos))``, the project's distance. With ``search_k=-1`` a
+query inspects ``n_trees * N`` nodes (all trees). Queries run one at a time (Annoy has no batch call).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from rdd.index.base import NearestIndex, interval_matrix
+
+
+def _require_annoy():
+    try:
+        from annoy import AnnoyIndex
+    except ImportError as exc:  # optional extra
+        raise ImportError(
+            "the annoy backend needs the 'annoy' package: pip install 'rdd-harness[index]'"
+        ) from exc
+    return AnnoyIndex
+
+
+class AnnoyBackend(NearestIndex):
+    """Approximate nearest neighbours with Annoy; the built forest is saved beside the database."""
+
+    name = "annoy"
+
+    def __init__(self, n_trees: int = 10, search_k: int = -1, seed: int = 0) -> None:
+        super().__init__()
+        if n_trees < 1:
+            raise ValueError(f"annoy index: n_trees must be >= 1, got {n_trees}")
+        if search_k != -1 and search_k < 1:
+            raise ValueError(f"annoy index: search_k must be -1 (all trees) or >= 1, got {search_k}")
+        self.n_trees = int(n_trees)
+        self.search_k = int(search_k)
+        self.seed = int(seed)
+        self._index = None
+        self.path: Path | None = None
+
+    def _fit(self, begin: np.ndarray, end: np.ndarray, cache_dir: Path | None, key: str | None) -> None:
+        annoy_index = _require_annoy()
+        x = interval_matrix(begin, end, normalize=False)
+        dim = x.shape[1]
+        if key is None:
+            key = hashlib.sha256(np.ascontiguousarray(x).tobytes()).hexdigest()
+        # The file name holds everything that made the forest, so a stale file is never reused.
+        fname = f"annoy-d{dim}-n{x.shape[0]}-t{self.n_trees}-s{self.seed}-{key[:16]}.ann"
+        index = annoy_index(dim, "angular")
+        if cache_dir is not None and (cache_dir / fname).is_file():
+            if not index.load(str(cache_dir / fname)) or index.get_n_items() != x.shape[0]:
+                raise ValueError(f"annoy index file {cache_dir / fname} is unreadable or has the wrong size")
+            self._index, self.path = index, cache_dir / fname
+            return
+        index.set_seed(self.seed)
+        for i, row in enumerate(x):
+            index.add_item(i, row.tolist())
+        index.build(self.n_trees, n_jobs=1)
+        if cache_dir is not None:
+            cache_dir.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=cache_dir, suffix=".ann.tmp")
+            os.close(fd)
+            index.save(tmp)
+            os.replace(tmp, cache_dir / fname)
+            # save() leaves the index memory-mapped from tmp; reload from the final name.
+            index = annoy_index(dim, "angular")
+            index.load(str(cache_dir / fname))
+            self.path = cache_dir / fname
+        self._index = index
+
+    def _search(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ids = np.empty(queries.shape[0], dtype=np.int64)
+        dists = np.empty(queries.shape[0], dtype=np.float64)
+        for i, q in enumerate(queries):
+            found, dist = self._index.get_nns_by_vector(q.tolist(), 1, search_k=self.search_k,
+                                                        include_distances=True)
+            ids[i], dists[i] = found[0], dist[0]
+        return ids, dists
+
+
+def build(**options) -> AnnoyBackend:
+    """The annoy backend with ``options`` (n_trees, search_k, seed)."""
+    return AnnoyBackend(**options)

@@ -1,0 +1,83 @@
+"""Faiss backend: inner product on unit-normalised interval vectors (Flat, IVF or HNSW).
+
+Uses a GPU when faiss-gpu is installed and sees one, the CPU otherwise.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from rdd.index.base import NearestIndex, interval_matrix
+from rdd.scoring import cosine_to_angular
+
+KINDS = ("flat", "ivf", "hnsw")
+
+
+def _require_faiss():
+    try:
+        import faiss
+    except ImportError as exc:  # optional extra
+        raise ImportError(
+            "the faiss backend needs faiss: pip install 'rdd-harness[index]' (or faiss-gpu)"
+        ) from exc
+    return faiss
+
+
+class FaissBackend(NearestIndex):
+    """Nearest neighbours by maximum inner product on normalised vectors (= minimum angle)."""
+
+    name = "faiss"
+
+    def __init__(self, kind: str = "flat", nlist: int | None = None, nprobe: int = 16,
+                 hnsw_m: int = 32, ef_search: int = 128, use_gpu: bool | None = None) -> None:
+        super().__init__()
+        if kind not in KINDS:
+            raise ValueError(f"faiss index: kind must be one of {KINDS}, got {kind!r}")
+        if nlist is not None and nlist < 1:
+            raise ValueError(f"faiss index: nlist must be None or >= 1, got {nlist}")
+        if nprobe < 1 or hnsw_m < 2 or ef_search < 1:
+            raise ValueError("faiss index: nprobe >= 1, hnsw_m >= 2 and ef_search >= 1 are required")
+        self.kind, self.nlist, self.nprobe = kind, nlist, int(nprobe)
+        self.hnsw_m, self.ef_search = int(hnsw_m), int(ef_search)
+        self.use_gpu = use_gpu
+        self._index = None
+
+    def _fit(self, begin: np.ndarray, end: np.ndarray, cache_dir: Path | None, key: str | None) -> None:
+        faiss = _require_faiss()
+        x = interval_matrix(begin, end, normalize=True)
+        n, dim = x.shape
+        if self.kind == "flat":
+            index = faiss.IndexFlatIP(dim)
+        elif self.kind == "ivf":
+            # sqrt(N) lists is faiss's usual rule of thumb; training needs at least nlist points.
+            nlist = self.nlist or max(1, min(int(np.sqrt(n)), n // 39 or 1))
+            index = faiss.IndexIVFFlat(faiss.IndexFlatIP(dim), dim, nlist, faiss.METRIC_INNER_PRODUCT)
+            index.train(x)
+            index.nprobe = min(self.nprobe, nlist)
+        else:
+            index = faiss.IndexHNSWFlat(dim, self.hnsw_m, faiss.METRIC_INNER_PRODUCT)
+            index.hnsw.efSearch = self.ef_search
+        gpus = faiss.get_num_gpus() if hasattr(faiss, "get_num_gpus") else 0
+        if self.use_gpu and gpus == 0:
+            raise RuntimeError("faiss index: use_gpu=True but no GPU faiss build or device is available")
+        if (self.use_gpu or self.use_gpu is None) and gpus > 0 and self.kind != "hnsw":
+            index = faiss.index_cpu_to_gpu(faiss.StandardGpuResources(), 0, index)
+        index.add(x)
+        self._index = index
+
+    def _search(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = queries / np.linalg.norm(queries, axis=1, keepdims=True)
+        sims, ids = self._index.search(np.ascontiguousarray(q, dtype=np.float32), 1)
+        ids = ids[:, 0].astype(np.int64)
+        if (ids < 0).any():
+            raise RuntimeError(
+                "faiss index returned no neighbour for some queries (raise nprobe or ef_search)"
+            )
+        return ids, cosine_to_angular(sims[:, 0])
+
+
+def build(**options) -> FaissBackend:
+    """The faiss backend with ``options`` (kind, nlist, nprobe, hnsw_m, ef_search, use_gpu)."""
+    return FaissBackend(**options)

@@ -1,0 +1,137 @@
+"""RDD interval scoring: interval vectors, angular distance, similarities (paper Eq. 3.4, 3.5).
+
+Conventions (DESIGN.md): an interval ``[start, end)`` has weight ``end - start`` and duration
+``end - 1 - start``; its vector is ``concat(frame[start], frame[end - 1])``; distance is angular,
+``sqrt(2 (1 - cos))``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+
+def _as_index_array(x, name: str) -> np.ndarray:
+    arr = np.asarray(x)
+    if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.integer):
+        raise ValueError(f"{name} must be a 1-D integer array, got dtype {arr.dtype} shape {arr.shape}")
+    return arr.astype(np.int64)
+
+
+def check_intervals(num_frames: int, starts, ends) -> tuple[np.ndarray, np.ndarray]:
+    """Validate half-open intervals ``[start, end)`` inside ``[0, num_frames)``; return int arrays."""
+    s = _as_index_array(starts, "starts")
+    e = _as_index_array(ends, "ends")
+    if s.shape != e.shape:
+        raise ValueError(f"starts and ends differ in length: {s.shape} vs {e.shape}")
+    if s.size and (s.min() < 0 or e.max() > num_frames or (e <= s).any()):
+        bad = np.nonzero((s < 0) | (e > num_frames) | (e <= s))[0][0]
+        raise ValueError(
+            f"interval [{s[bad]}, {e[bad]}) is empty or outside [0, {num_frames})"
+        )
+    return s, e
+
+
+def interval_vectors(frame_vectors: np.ndarray, starts, ends) -> np.ndarray:
+    """(N, 2D) interval vectors ``concat(frame[start], frame[end - 1])`` of intervals ``[start, end)``."""
+    fv = np.asarray(frame_vectors, dtype=np.float32)
+    if fv.ndim != 2:
+        raise ValueError(f"frame_vectors must be (T, D), got shape {fv.shape}")
+    s, e = check_intervals(fv.shape[0], starts, ends)
+    return np.concatenate([fv[s], fv[e - 1]], axis=1)
+
+
+def weights(starts, ends) -> np.ndarray:
+    """Segment weights ``end - start`` (the number of frames)."""
+    return np.asarray(ends, dtype=np.float64) - np.asarray(starts, dtype=np.float64)
+
+
+def durations(starts, ends) -> np.ndarray:
+    """Segment durations ``end - 1 - start`` used by the length term."""
+    return weights(starts, ends) - 1.0
+
+
+def cosine_to_angular(cos: np.ndarray) -> np.ndarray:
+    """Angular distance ``sqrt(2 (1 - cos))`` (cosine clipped to [-1, 1] against rounding)."""
+    cos = np.clip(np.asarray(cos, dtype=np.float64), -1.0, 1.0)
+    return np.sqrt(2.0 * (1.0 - cos))
+
+
+def angular_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise angular distance between ``a`` and ``b`` (broadcast over leading axes)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    na = np.linalg.norm(a, axis=-1)
+    nb = np.linalg.norm(b, axis=-1)
+    if (na == 0).any() or (nb == 0).any():
+        raise ValueError("angular distance is undefined for a zero vector")
+    return cosine_to_angular(np.sum(a * b, axis=-1) / (na * nb))
+
+
+def length_term(query_durations, neighbour_durations) -> np.ndarray:
+    """``|1 - dur(I) / dur(I_nn)|``; a one-frame neighbour (duration 0) counts as duration 1.
+
+    A database entry of a single frame has duration 0 under DESIGN.md's convention; clamping it to 1
+    keeps the ratio finite instead of making every query that matches it infinitely bad.
+    """
+    q = np.asarray(query_durations, dtype=np.float64)
+    nn = np.maximum(np.asarray(neighbour_durations, dtype=np.float64), 1.0)
+    return np.abs(1.0 - q / nn)
+
+
+def default_similarity(distance, query_durations, neighbour_durations, alpha: float) -> np.ndarray:
+    """Paper Eq. 3.4: ``-[dist(V(I), V(I_nn)) + alpha * |1 - dur(I) / dur(I_nn)|]``."""
+    return -(np.asarray(distance, dtype=np.float64) + float(alpha) * length_term(query_durations, neighbour_durations))
+
+
+def uvd_prior(starts, ends, milestone_of_end) -> np.ndarray:
+    """``G(I) = -|start - m(e)| / weight(I)``; ``milestone_of_end[end - 1]`` holds m(e) per end frame."""
+    s = np.asarray(starts, dtype=np.int64)
+    e = np.asarray(ends, dtype=np.int64)
+    m = np.asarray(milestone_of_end, dtype=np.float64)[e - 1]
+    return -np.abs(s - m) / weights(s, e)
+
+
+def ood_similarity(end_distance, starts, ends, milestone_of_end, beta: float) -> np.ndarray:
+    """Paper Eq. 3.5: ``-dist(E(o_end), E(o_end_nn)) + beta * G(I)``."""
+    return -np.asarray(end_distance, dtype=np.float64) + float(beta) * uvd_prior(starts, ends, milestone_of_end)
+
+
+def uvd_milestones_per_end(
+    frame_vectors: np.ndarray,
+    end_frames: Sequence[int] | np.ndarray,
+    min_interval: int = 18,
+    gamma: float = 0.08,
+    normalize_curve: bool = False,
+    window_length: int | None = None,
+) -> np.ndarray:
+    """m(e) for every frame e in ``end_frames``: one backward UVD step from e (0 when UVD finds none).
+
+    Returns a (T,) array (NaN for frames not asked for). Computed once per end frame and shared by
+    every interval ending there, instead of once per interval.
+    """
+    from rdd.decomposers.uvd import uvd_previous_milestone  # lazy: keeps scoring import-light
+
+    fv = np.asarray(frame_vectors)
+    out = np.full(fv.shape[0], np.nan)
+    for e in np.unique(np.asarray(end_frames, dtype=np.int64)):
+        m = uvd_previous_milestone(
+            fv, int(e), min_interval=min_interval, gamma=gamma,
+            normalize_curve=normalize_curve, window_length=window_length,
+        )
+        out[e] = 0.0 if m is None else float(m)
+    return out
+
+
+def interval_scores(similarity, starts, ends) -> np.ndarray:
+    """``J(I) = weight(I) * sim(I, I_nn)``."""
+    return weights(starts, ends) * np.asarray(similarity, dtype=np.float64)
+
+
+def novelty(segment_scores: Sequence[float] | np.ndarray) -> float:
+    """Delta: the mean interval score of a partition's segments (paper Sec. 3.3)."""
+    arr = np.asarray(segment_scores, dtype=np.float64)
+    if arr.size == 0:
+        raise ValueError("novelty needs at least one segment score")
+    return float(arr.mean())

@@ -1,0 +1,148 @@
+"""Retrieval backends: exact equals brute force; annoy and faiss reach high recall."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rdd.encoders.embed import l2_normalize
+from rdd.index import NearestIndex, available_indexes, load_index
+from rdd.index.exact import ExactIndex
+
+CONF = Path(__file__).resolve().parents[2] / "conf" / "index"
+
+
+def brute_force(queries: np.ndarray, begin: np.ndarray, end: np.ndarray):
+    """Nearest entry by angular distance on full interval vectors, in float64."""
+    x = np.concatenate([begin, end], 1).astype(np.float64)
+    q = queries.astype(np.float64)
+    cos = (q / np.linalg.norm(q, axis=1, keepdims=True)) @ (x / np.linalg.norm(x, axis=1, keepdims=True)).T
+    return cos.argmax(1), np.sqrt(np.maximum(2 - 2 * cos.max(1), 0)), cos
+
+
+def clustered(rng, n, d, clusters=40, spread=0.15):
+    """Frame vectors (two 'views' of d/2 each, normalised per view) around random cluster centres."""
+    centres = rng.normal(size=(clusters, d))
+    x = centres[rng.integers(clusters, size=n)] + spread * rng.normal(size=(n, d))
+    h = d // 2
+    return np.concatenate([l2_normalize(x[:, :h]), l2_normalize(x[:, h:])], 1)
+
+
+def test_exact_search_equals_brute_force():
+    rng = np.random.default_rng(0)
+    begin, end = rng.normal(size=(700, 12)), rng.normal(size=(700, 12)) * 2  # not normalised
+    q = rng.normal(size=(300, 24))
+    idx = ExactIndex().fit(begin, end)
+    ids, dist = idx.search(q)
+    ref_ids, ref_dist, _ = brute_force(q, begin, end)
+    np.testing.assert_array_equal(ids, ref_ids)
+    np.testing.assert_allclose(dist, ref_dist, atol=1e-5)
+
+
+@pytest.mark.parametrize("memory_mb", [1, 256])
+def test_exact_intervals_equal_brute_force(memory_mb):
+    rng = np.random.default_rng(1)
+    t, d = 60, 16
+    begin, end = clustered(rng, 5000, d), clustered(rng, 5000, d)
+    fv = clustered(rng, t, d)
+    starts, ends = np.meshgrid(np.arange(t), np.arange(1, t + 1), indexing="ij")
+    keep = (ends > starts) & (ends - starts <= 25)
+    s, e = starts[keep], ends[keep]
+    idx = ExactIndex(memory_mb=memory_mb).fit(begin, end)  # 1 MB forces several database chunks
+    if memory_mb == 1:
+        assert idx._chunk_entries(2 * t + 25) < 5000
+    ids, dist = idx.search_intervals(fv, s, e)
+    q = np.concatenate([fv[s], fv[e - 1]], 1)
+    ref_ids, ref_dist, cos = brute_force(q, begin, end)
+    np.testing.assert_allclose(dist, ref_dist, atol=1e-5)
+    # ids agree except where two entries are equally near within float32 rounding
+    top2 = np.sort(cos, axis=1)[:, -2:]
+    clear = top2[:, 1] - top2[:, 0] > 1e-5
+    np.testing.assert_array_equal(ids[clear], ref_ids[clear])
+    # scattered (non-contiguous) intervals give the same answers as the grouped fast path
+    perm = rng.permutation(s.size)[:200]
+    ids2, dist2 = idx.search_intervals(fv, s[perm], e[perm])
+    np.testing.assert_array_equal(ids2, ids[perm])
+    np.testing.assert_allclose(dist2, dist[perm], atol=1e-6)
+
+
+def _recall(index: NearestIndex, rng) -> float:
+    d = 32
+    begin, end = clustered(rng, 3000, d), clustered(rng, 3000, d)
+    # queries: database intervals perturbed, as a new demo's sub-tasks are near training ones
+    pick = rng.integers(3000, size=300)
+    q = np.concatenate([begin[pick], end[pick]], 1) + 0.05 * rng.normal(size=(300, 2 * d))
+    index.fit(begin, end)
+    ids, dist = index.search(q)
+    ref_ids, ref_dist, _ = brute_force(q, begin, end)
+    hit = ids == ref_ids
+    np.testing.assert_allclose(dist[hit], ref_dist[hit], atol=1e-4)
+    return float(hit.mean())
+
+
+@pytest.mark.parametrize(
+    "name,options",
+    [("annoy", {}), ("faiss", {"kind": "flat"}), ("faiss", {"kind": "ivf"}), ("faiss", {"kind": "hnsw"})],
+)
+def test_approximate_backends_recall(name, options):
+    recall = _recall(load_index(name, **options), np.random.default_rng(2))
+    assert recall >= 0.9, f"{name} {options}: recall {recall:.3f}"
+
+
+def test_annoy_forest_saved_beside_database(tmp_path):
+    rng = np.random.default_rng(3)
+    begin, end = clustered(rng, 300, 8), clustered(rng, 300, 8)
+    a = load_index("annoy").fit(begin, end, cache_dir=tmp_path, key="abc123")
+    assert a.path is not None and a.path.parent == tmp_path and a.path.suffix == ".ann"
+    b = load_index("annoy").fit(begin, end, cache_dir=tmp_path, key="abc123")
+    assert b.path == a.path
+    q = np.concatenate([begin[:20], end[:20]], 1)
+    np.testing.assert_array_equal(a.search(q)[0], b.search(q)[0])
+    assert len(list(tmp_path.glob("*.ann"))) == 1
+
+
+def test_load_index_by_module_name_and_errors():
+    assert {"annoy", "exact", "faiss"} <= set(available_indexes())
+    assert isinstance(load_index("exact"), ExactIndex)
+    with pytest.raises(ValueError, match="unknown index backend"):
+        load_index("nope")
+    with pytest.raises(ValueError, match="unknown index backend"):
+        load_index("../x")
+    with pytest.raises(ValueError, match="kind"):
+        load_index("faiss", kind="pq")
+    with pytest.raises(ValueError, match="n_trees"):
+        load_index("annoy", n_trees=0)
+
+
+def test_index_configs_instantiate():
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    for name in ("annoy", "faiss", "exact"):
+        cfg = OmegaConf.load(CONF / f"{name}.yaml")
+        index = instantiate(cfg)
+        assert isinstance(index, NearestIndex) and index.name == name
+
+
+def test_search_input_errors():
+    rng = np.random.default_rng(4)
+    idx = ExactIndex()
+    with pytest.raises(RuntimeError, match="fit"):
+        idx.search(np.ones((1, 4)))
+    idx.fit(rng.normal(size=(10, 2)), rng.normal(size=(10, 2)))
+    with pytest.raises(ValueError, match=r"\(Q, 4\)"):
+        idx.search(np.ones((3, 5)))
+    with pytest.raises(ValueError, match="zero"):
+        idx.search(np.zeros((1, 4)))
+    with pytest.raises(ValueError, match="NaN"):
+        idx.search(np.full((1, 4), np.nan))
+    with pytest.raises(ValueError, match=r"\(T, 2\)"):
+        idx.search_intervals(np.ones((5, 3)), [0], [2])
+    with pytest.raises(ValueError, match="outside"):
+        idx.search_intervals(np.ones((5, 2)), [0], [6])
+    with pytest.raises(ValueError, match="same shape|one shape"):
+        ExactIndex().fit(np.ones((3, 2)), np.ones((3, 3)))
+    with pytest.raises(ValueError, match="empty"):
+        ExactIndex().fit(np.ones((0, 2)), np.ones((0, 2)))
