@@ -1,0 +1,20 @@
+"""The task registry: name -> Task class (one module per task)."""
+
+from __future__ import annotations
+
+from envs.tasks.base import Task
+from envs.tasks.stack_blocks import StackBlocks
+
+TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (StackBlocks,)}
+
+
+def get_task(name: str) -> Task:
+    """A fresh instance of the task called ``name``."""
+    if name not in TASKS:
+        raise KeyError(f"unknown task {name!r}; known tasks: {sorted(TASKS)}")
+    return TASKS[name]()
+
+
+def task_names(pretraining: bool | None = None) -> list[str]:
+    """Registered task names; ``pretraining`` True/False selects planner-pretraining/evaluation tasks."""
+    return [n for n, c in TASKS.items() if pretraining is None or c.pretraining == pretraining]
