@@ -1,0 +1,194 @@
+"""The RDD decomposer: exact recovery of database sub-tasks, optimality against brute force."""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rdd.data.episode import Episode
+from rdd.database import DatabaseError, SubtaskDatabase
+from rdd.decomposers.base import Decomposition
+from rdd.decomposers.rdd import RDDDecomposer
+from rdd.decomposers.uvd import uvd_previous_milestone
+from rdd.demo import SyntheticWorld, build_synthetic_database, run_demo
+from rdd.encoders.base import Encoder
+from rdd.encoders.embed import concat_views, episode_frame_vectors
+
+CONF = Path(__file__).resolve().parents[2] / "conf" / "decomposer"
+
+
+@pytest.fixture(scope="module")
+def world_db():
+    rng = np.random.default_rng(0)
+    world = SyntheticWorld.make(seed=0)
+    db, demos = build_synthetic_database(world, demos_per_task=4, rng=rng)
+    return world, db, demos
+
+
+def assemble(db_demos, picks):
+    """A new demo made of copies of training sub-tasks: (task, demo index, leg) picks."""
+    parts, truth, entries, start = [], [], [], 0
+    for task, i, k in picks:
+        fv, segs = db_demos[task][i]
+        s, e = segs[k]
+        parts.append(fv[s:e])
+        truth.append((start, start + e - s))
+        entries.append((f"{task}/train_{i}", s, e))
+        start += e - s
+    return np.concatenate(parts), truth, entries
+
+
+@pytest.mark.parametrize("backend", ["exact", "annoy", "faiss"])
+def test_demo_assembled_from_database_subtasks_decomposes_back(world_db, backend):
+    world, db, demos = world_db
+    rng = np.random.default_rng(5)
+    tasks = sorted(demos)
+    picks = []
+    for _ in range(6):  # sub-tasks drawn from different tasks and demos, in a new order
+        task = tasks[int(rng.integers(len(tasks)))]
+        i = int(rng.integers(len(demos[task])))
+        picks.append((task, i, int(rng.integers(len(demos[task][i][1])))))
+    fv, truth, entries = assemble(demos, picks)
+    result = RDDDecomposer(db, alpha=1.0, backend=backend).decompose_embeddings(fv)
+    assert isinstance(result, Decomposition)
+    assert result.segments == truth
+    assert result.keyframes == [e - 1 for _, e in truth]
+    got = [(n["episode"], n["start"], n["end"]) for n in result.neighbours]
+    assert got == entries
+    assert all(n["distance"] == pytest.approx(0.0, abs=1e-3) for n in result.neighbours)
+    assert result.novelty == pytest.approx(0.0, abs=0.05)
+    assert result.novelty == pytest.approx(np.mean(result.scores))
+
+
+def brute_force_objective(fv, db, mode, alpha, beta, min_len, max_len, uvd_kwargs):
+    """Max over all partitions of the summed J, every score computed directly per interval."""
+    x = np.concatenate([db.begin, db.end], 1).astype(np.float64)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    t = fv.shape[0]
+
+    def j(s, e):
+        q = np.concatenate([fv[s], fv[e - 1]]).astype(np.float64)
+        cos = x @ (q / np.linalg.norm(q))
+        nn = int(cos.argmax())
+        if mode == "default":
+            dist = np.sqrt(max(2 - 2 * cos[nn], 0.0))
+            sim = -(dist + alpha * abs(1 - (e - 1 - s) / max(db.durations[nn], 1)))
+        else:
+            a, b = fv[e - 1].astype(np.float64), db.end[nn].astype(np.float64)
+            c = a @ b / np.linalg.norm(a) / np.linalg.norm(b)
+            m = uvd_previous_milestone(fv, e - 1, **uvd_kwargs)  # rerun per interval, as officially
+            sim = -np.sqrt(max(2 - 2 * c, 0.0)) + beta * (-abs(s - (m or 0)) / (e - s))
+        return (e - s) * sim
+
+    best = -np.inf
+    for k in range(t):
+        for cuts in itertools.combinations(range(1, t), k):
+            b = (0, *cuts, t)
+            if all(min_len <= e - s <= max_len for s, e in itertools.pairwise(b)):
+                best = max(best, sum(j(s, e) for s, e in itertools.pairwise(b)))
+    return best
+
+
+@pytest.mark.parametrize("mode", ["default", "ood"])
+def test_objective_equals_brute_force(world_db, mode):
+    world, db, _ = world_db
+    rng = np.random.default_rng(7)
+    fv, _ = world.demo("task_1", rng, length_range=(4, 6))
+    fv = fv[:14]
+    uvd = {"min_interval": 2}
+    dec = RDDDecomposer(db, alpha=0.7, beta=0.5, mode=mode, min_len=2, max_len=6, uvd_options=uvd)
+    result = dec.decompose_embeddings(fv)
+    ref = brute_force_objective(fv, db, mode, 0.7, 0.5, 2, 6, uvd)
+    assert result.meta["objective"] == pytest.approx(ref, abs=1e-4)
+    assert sum(result.scores) == pytest.approx(ref, abs=1e-4)
+    assert all(2 <= e - s <= 6 for s, e in result.segments)
+
+
+class PixelMeanEncoder(Encoder):
+    """Test encoder: a fixed random projection of 8x8 RGB pixels."""
+
+    name = "test_pixel_mean"
+    dim = 5
+
+    def __init__(self) -> None:
+        self._w = np.random.default_rng(1).normal(size=(8 * 8 * 3, self.dim)).astype(np.float32)
+
+    @property
+    def weights_id(self) -> str:
+        return "fixed-seed-1"
+
+    def encode(self, images: np.ndarray) -> np.ndarray:
+        return (images.reshape(images.shape[0], -1).astype(np.float32) / 255.0 - 0.5) @ self._w
+
+
+def test_decompose_episode_matches_embeddings_and_checks_encoder():
+    rng = np.random.default_rng(3)
+    enc = PixelMeanEncoder()
+    train = [Episode(name=f"tr{i}", task="t", views={v: rng.integers(0, 256, (20, 8, 8, 3), dtype=np.uint8)
+                                                    for v in ("front", "wrist")},
+                     segments=[(0, 7), (7, 20)], instructions=["a", "b"]) for i in range(3)]
+    db = SubtaskDatabase.build(train, None, enc)
+    test_ep = train[1]
+    dec = RDDDecomposer(db, encoder=enc)
+    from_episode = dec.decompose(test_ep)
+    from_vectors = dec.decompose_embeddings(episode_frame_vectors(test_ep, enc))
+    assert from_episode.segments == from_vectors.segments == [(0, 7), (7, 20)]
+    assert [n["instruction"] for n in from_episode.neighbours] == ["a", "b"]
+    assert from_episode.meta["episode"] == "tr1"
+
+    class Other(PixelMeanEncoder):
+        name = "other"
+
+    with pytest.raises(DatabaseError, match="encoder 'test_pixel_mean'"):
+        RDDDecomposer(db, encoder=Other())
+    with pytest.raises(DatabaseError, match="views"):
+        RDDDecomposer(db, encoder=enc, views=("front",))
+    with pytest.raises(ValueError, match="needs an encoder"):
+        RDDDecomposer(db).decompose(test_ep)
+
+
+def test_bad_arguments(world_db):
+    _, db, _ = world_db
+    with pytest.raises(ValueError, match="mode"):
+        RDDDecomposer(db, mode="fast")
+    with pytest.raises(ValueError, match="max_len"):
+        RDDDecomposer(db, min_len=4, max_len=3)
+    with pytest.raises(ValueError, match="unknown index backend"):
+        RDDDecomposer(db, backend="kdtree")
+    with pytest.raises(TypeError, match="SubtaskDatabase"):
+        RDDDecomposer(np.ones((3, 3)))
+    dec = RDDDecomposer(db)
+    with pytest.raises(ValueError, match="128-d"):
+        dec.decompose_embeddings(np.ones((10, 7), dtype=np.float32))
+    with pytest.raises(ValueError, match="shorter than min_len"):
+        dec.decompose_embeddings(concat_views([np.ones((1, 64)), np.ones((1, 64))]))
+
+
+def test_decomposer_configs_instantiate(world_db):
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    _, db, demos = world_db
+    fv, truth = demos["task_0"][0]
+    for name, mode in (("rdd", "default"), ("rdd_ood", "ood")):
+        partial = instantiate(OmegaConf.load(CONF / f"{name}.yaml"))
+        dec = partial(database=db, encoder=None, views=("front", "wrist"))
+        assert isinstance(dec, RDDDecomposer) and dec.mode == mode
+        result = dec.decompose_embeddings(fv)
+        assert result.segments[0][0] == 0 and result.segments[-1][1] == fv.shape[0]
+        if mode == "default":
+            assert result.segments == truth  # a training demo itself is cut at its true boundaries
+
+
+def test_run_demo_reports_segments(capsys):
+    summary = run_demo(seed=1)
+    out = capsys.readouterr().out
+    assert "RDD segments" in out and "novelty" in out
+    segs = summary["segments"]
+    assert segs[0][0] == 0 and segs[-1][1] == summary["num_frames"]
+    # the new demo is fresh noise and lengths, so cut points are near, not necessarily on, the truth
+    assert summary["boundary_errors"] is not None
+    assert max(abs(x) for x in summary["boundary_errors"]) <= 5
