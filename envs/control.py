@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from envs.scene import PHYSICS_HZ, Scene
+from envs.scene import HOME_Q, PHYSICS_HZ, SIDE_SEEDS, Scene
 
 STOP_VELOCITY = 0.1  # rad/s: the keyframe rule's stopping_delta
 FAILURES = ("unreachable", "collision", "timeout")
@@ -56,7 +56,7 @@ class Controller:
         joint_speed: float = 0.6,
         min_duration: float = 0.45,
         ramp: float = 0.1,
-        max_ik_error: float = 0.004,
+        max_ik_error: float = 0.01,
         on_frame: Callable[[], None] | None = None,
     ):
         self.scene = scene
@@ -84,15 +84,26 @@ class Controller:
         err = 0.0
         for i in range(1, n + 1):
             t = i / n
-            q, e = scene.solve_ik(p0 + t * (p1 - p0), _slerp(q0, q1, t), qs[-1])
+            q, err = scene.solve_ik(p0 + t * (p1 - p0), _slerp(q0, q1, t), qs[-1])
             # An IK branch switch shows up as a jump between neighbouring path points.
-            if np.max(np.abs(q - qs[-1])) > 0.6:
-                return None, np.inf
+            if np.max(np.abs(q - qs[-1])) > 0.6 or (i == n and err > self.max_ik_error):
+                break
             qs.append(q)
-            err = e
-        if err > self.max_ik_error:
-            return None, err
-        return np.stack(qs), err
+        else:
+            return np.stack(qs), err
+        # No straight Cartesian path: fall back to a joint-space move to an IK solution,
+        # as a motion planner would (seeds: the current arm, then canonical postures).
+        best, best_err = None, np.inf
+        for seed in (start_q, np.array(HOME_Q), *map(np.array, SIDE_SEEDS)):
+            q, e = scene.solve_ik(p1, q1, seed, iterations=10)
+            if e < best_err:
+                best, best_err = q, e
+            if e <= self.max_ik_error:
+                break
+        if best is None or best_err > self.max_ik_error:
+            return None, best_err
+        steps = int(max(2, np.ceil(np.max(np.abs(best - start_q)) / 0.05)))
+        return np.stack([start_q + (best - start_q) * k / steps for k in range(steps + 1)]), best_err
 
     def _profile(self, path: np.ndarray):
         """Per-tick joint targets and velocities for a trapezoidal max-joint-speed profile."""

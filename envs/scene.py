@@ -28,6 +28,8 @@ FINGER_JOINTS = (9, 10)
 HAND_LINK = 8
 EE_LINK = 11  # panda_grasptarget: the point between the fingertips
 HOME_Q = (0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785)
+# Postures with the hand horizontal, pointing away from the robot (IK seeds for side grasps).
+SIDE_SEEDS = ((0.0, 0.3, 0.0, -2.0, 0.0, 2.3, -0.785), (0.0, 0.3, 0.0, -2.0, 0.0, 2.3, 2.35))
 JOINT_LOWER = np.array([-2.9671, -1.8326, -2.9671, -3.1416, -2.9671, -0.0873, -2.9671])
 JOINT_UPPER = np.array([2.9671, 1.8326, 2.9671, 0.0, 2.9671, 3.8223, 2.9671])
 ARM_FORCES = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
@@ -247,6 +249,41 @@ class Scene:
         self.p.changeDynamics(body, -1, lateralFriction=friction)
         return body
 
+    def add_articulated(self, base_parts, position, links, quaternion=(0, 0, 0, 1)) -> int:
+        """A static compound base with movable links.
+
+        ``links`` holds dicts with ``parts`` (see ``compound_shapes``), ``parent`` (0 = base,
+        i = i-th link, 1-based as pybullet wants), ``offset`` (link frame in the parent frame),
+        ``joint`` (``"prismatic"``, ``"revolute"`` or ``"fixed"``), ``axis``, ``mass``,
+        and optional ``limits`` (lower, upper).
+        """
+        p = self.p
+        base_col, base_vis = self.compound_shapes(base_parts)
+        kinds = {"prismatic": pb.JOINT_PRISMATIC, "revolute": pb.JOINT_REVOLUTE, "fixed": pb.JOINT_FIXED}
+        cols, viss = [], []
+        for link in links:
+            c, v = self.compound_shapes(link["parts"])
+            cols.append(c)
+            viss.append(v)
+        body = p.createMultiBody(
+            0.0, base_col, base_vis, basePosition=position, baseOrientation=quaternion,
+            linkMasses=[float(link.get("mass", 0.2)) for link in links],
+            linkCollisionShapeIndices=cols, linkVisualShapeIndices=viss,
+            linkPositions=[list(link["offset"]) for link in links],
+            linkOrientations=[[0, 0, 0, 1]] * len(links),
+            linkInertialFramePositions=[[0, 0, 0]] * len(links),
+            linkInertialFrameOrientations=[[0, 0, 0, 1]] * len(links),
+            linkParentIndices=[int(link["parent"]) for link in links],
+            linkJointTypes=[kinds[link["joint"]] for link in links],
+            linkJointAxis=[list(link.get("axis", (0, 0, 1))) for link in links],
+        )
+        for j, link in enumerate(links):
+            if "limits" in link:
+                lo, hi = link["limits"]
+                p.changeDynamics(body, j, jointLowerLimit=lo, jointUpperLimit=hi, jointLimitForce=500)
+            p.changeDynamics(body, j, lateralFriction=1.0)
+        return body
+
     # ----------------------------------------------------------------- robot
     def arm_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Arm joint positions and velocities (7 each)."""
@@ -293,18 +330,18 @@ class Scene:
             for hook in self.step_hooks:
                 hook()
 
-    def solve_ik(self, position, quaternion, seed_q) -> tuple[np.ndarray, float]:
+    def solve_ik(self, position, quaternion, seed_q, iterations: int = 6) -> tuple[np.ndarray, float]:
         """Joint angles reaching the pose from ``seed_q`` and the remaining position error (m)."""
         ik = self.ik
         for j, q in zip(ARM_JOINTS, seed_q, strict=True):
             ik.resetJointState(self.ik_robot, j, q)
-        rest = list(HOME_Q) + [FINGER_OPEN, FINGER_OPEN]
+        rest = list(seed_q) + [FINGER_OPEN, FINGER_OPEN]  # null space pulls toward the seed
         lower = list(JOINT_LOWER) + [0.0, 0.0]
         upper = list(JOINT_UPPER) + [FINGER_OPEN, FINGER_OPEN]
         ranges = [u - lo for u, lo in zip(upper, lower, strict=True)]
         q = np.asarray(seed_q, dtype=np.float64)
         err = np.inf
-        for _ in range(4):
+        for _ in range(iterations):
             sol = ik.calculateInverseKinematics(
                 self.ik_robot, EE_LINK, list(position), list(quaternion),
                 lowerLimits=lower, upperLimits=upper, jointRanges=ranges, restPoses=rest,
@@ -321,6 +358,23 @@ class Scene:
             if pos_err < 1e-3 and rot_err < 0.02:
                 break
         return q, err
+
+    def best_side_quat(self, position, approach=(1.0, 0.0, 0.0)) -> np.ndarray:
+        """Horizontal-approach orientation (fingers opening horizontally) the arm reaches best.
+
+        The hand is symmetric under a half turn about its approach axis, so both finger
+        directions grasp the same way; joint 7's range makes only one reachable in places.
+        """
+        best, best_err = None, np.inf
+        a = np.asarray(approach, dtype=np.float64)
+        side = np.cross([0.0, 0.0, 1.0], a)
+        for sign in (1.0, -1.0):
+            quat = gripper_quat(a, sign * side)
+            for seed in SIDE_SEEDS:
+                _, err = self.solve_ik(position, quat, seed, iterations=10)
+                if err < best_err:
+                    best, best_err = quat, err
+        return best
 
     # ---------------------------------------------------------------- grasping
     def set_gripper(self, open_: bool, graspable) -> None:
@@ -349,9 +403,9 @@ class Scene:
         for body, link in graspable:
             near = []
             for finger in FINGER_JOINTS:
-                pts = self.p.getClosestPoints(self.robot, body, 0.03, linkIndexA=finger, linkIndexB=link)
+                pts = self.p.getClosestPoints(self.robot, body, 0.06, linkIndexA=finger, linkIndexB=link)
                 near.append(min((pt[8] for pt in pts), default=np.inf))
-            if max(near) > 0.025:
+            if max(near) > FINGER_OPEN + 0.006:  # each finger at most its open stroke away
                 continue
             pos, _ = self.link_pose(body, link)
             # The grasp point must lie inside the object's box, inflated by 1.5 cm.
@@ -407,7 +461,7 @@ class Scene:
     def render(self) -> dict[str, np.ndarray]:
         """RGB images (H, W, 3) uint8 from the ``front`` and ``wrist`` cameras."""
         cam = self.camera
-        views = {"front": self.p.computeViewMatrix((1.35, 0.0, 0.62), (0.35, 0.0, 0.08), (0, 0, 1))}
+        views = {"front": self.p.computeViewMatrix((1.08, 0.0, 0.52), (0.4, 0.0, 0.1), (0, 0, 1))}
         hs = self.p.getLinkState(self.robot, HAND_LINK, computeForwardKinematics=True)
         rot = np.array(self.p.getMatrixFromQuaternion(hs[5])).reshape(3, 3)
         eye = np.array(hs[4]) + rot @ np.array([0.07, 0.0, 0.02])

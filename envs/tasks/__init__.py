@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from envs.tasks.base import Task
+from envs.tasks.open_drawer import OpenDrawer
 from envs.tasks.stack_blocks import StackBlocks
 
-TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (StackBlocks,)}
+TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (OpenDrawer, StackBlocks)}
 
 
 def get_task(name: str) -> Task:

@@ -12,7 +12,7 @@ import numpy as np
 from envs.record import ArticulationInfo, ObjectInfo
 from envs.scene import Scene, top_down_quat
 
-HOME_FINGER_YAW = 0.0  # finger-opening direction of the home pose (along world x)
+HOME_FINGER_YAW = -np.pi / 4  # middle of the finger yaws joint 7 can reach with the hand down
 
 
 @dataclass
