@@ -1,0 +1,205 @@
+"""Training the keyframe network on flat arrays, cached on disk by config + data hash."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from policy.network import KeyframeNet, NetConfig
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class KeyframeDataset:
+    """Training samples; anchors reference rows of ``name_table`` (index -1 = no anchor)."""
+
+    instr_idx: np.ndarray  # (N,) int rows of instr_table
+    instr_table: np.ndarray  # (I, D) float32 instruction embeddings
+    instr_texts: list[str]  # (I,) the instructions themselves
+    proprio: np.ndarray  # (N, 8) ee xyz, quat xyzw, gripper open
+    name_idx: np.ndarray  # (N, K) int rows of name_table, -1 for padding
+    name_table: np.ndarray  # (M, D) anchor description embeddings
+    name_texts: list[str]  # (M,)
+    pos: np.ndarray  # (N, K, 3)
+    yaw: np.ndarray  # (N, K)
+    state: np.ndarray  # (N, K, S)
+    target: np.ndarray  # (N, 8) keyframe: xyz, quat xyzw, gripper open
+
+    def __post_init__(self) -> None:
+        n = len(self.instr_idx)
+        for f in ("proprio", "name_idx", "pos", "yaw", "state", "target"):
+            if len(getattr(self, f)) != n:
+                raise ValueError(f"KeyframeDataset.{f} has {len(getattr(self, f))} rows, expected {n}")
+        if n and (self.instr_idx.max() >= len(self.instr_table) or self.instr_idx.min() < 0):
+            raise ValueError("KeyframeDataset.instr_idx points outside instr_table")
+        if n and self.name_idx.max() >= len(self.name_table):
+            raise ValueError("KeyframeDataset.name_idx points outside name_table")
+
+    def __len__(self) -> int:
+        return len(self.instr_idx)
+
+    def fingerprint(self) -> str:
+        """Content hash of every array and text list."""
+        h = hashlib.sha256()
+        for f in fields(self):
+            v = getattr(self, f.name)
+            h.update(f.name.encode())
+            if isinstance(v, np.ndarray):
+                h.update(str(v.dtype).encode() + str(v.shape).encode())
+                h.update(np.ascontiguousarray(v).tobytes())
+            else:
+                h.update(json.dumps(v).encode())
+        return h.hexdigest()
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation settings."""
+
+    epochs: int = 40
+    batch_size: int = 256
+    lr: float = 2e-3
+    weight_decay: float = 1e-4
+    seed: int = 0
+    threads: int = 1
+    max_seconds: float = 540.0  # hard stop so the whole suite trains within 10 minutes
+    sigma_start: float = 0.2  # metres; the mixture width anneals from here to NetConfig.pos_sigma
+    anneal_fraction: float = 0.5  # share of the epochs spent annealing
+
+
+def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainConfig) -> tuple[KeyframeNet, dict]:
+    """Fit a :class:`KeyframeNet` to ``data``; returns the model and a stats dict."""
+    if len(data) == 0:
+        raise ValueError("cannot train the keyframe policy on an empty dataset")
+    torch.manual_seed(train_cfg.seed)
+    prev_threads = torch.get_num_threads()
+    torch.set_num_threads(max(1, train_cfg.threads))
+    try:
+        net = KeyframeNet(net_cfg)
+        t = _tensors(data)
+        opt = torch.optim.AdamW(net.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay)
+        n = len(data)
+        steps_per_epoch = max(1, (n + train_cfg.batch_size - 1) // train_cfg.batch_size)
+        sched = torch.optim.lr_scheduler.OneCycleLR(
+            opt, max_lr=train_cfg.lr, total_steps=train_cfg.epochs * steps_per_epoch
+        )
+        gen = torch.Generator().manual_seed(train_cfg.seed)
+        start = time.perf_counter()
+        history: list[float] = []
+        stopped_early = False
+        for epoch in range(train_cfg.epochs):
+            frac = min(1.0, epoch / max(1.0, train_cfg.anneal_fraction * train_cfg.epochs))
+            sigma = train_cfg.sigma_start * (net_cfg.pos_sigma / train_cfg.sigma_start) ** frac
+            perm = torch.randperm(n, generator=gen)
+            total = 0.0
+            for b in range(steps_per_epoch):
+                idx = perm[b * train_cfg.batch_size:(b + 1) * train_cfg.batch_size]
+                pred = net(*_inputs(t, idx))
+                loss = net.loss(pred, t["target"][idx, :3], t["target"][idx, 3:7], t["target"][idx, 7],
+                                pos_sigma=sigma)
+                opt.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
+                opt.step()
+                sched.step()
+                total += float(loss.detach()) * len(idx)
+            history.append(total / n)
+            log.info("policy epoch %d/%d loss %.4f", epoch + 1, train_cfg.epochs, history[-1])
+            if time.perf_counter() - start > train_cfg.max_seconds:
+                stopped_early = True
+                log.warning("policy training stopped after %d epochs (max_seconds)", epoch + 1)
+                break
+        net.eval()
+        stats = {
+            "samples": n,
+            "epochs_run": len(history),
+            "stopped_early": stopped_early,
+            "loss_history": history,
+            "train_seconds": time.perf_counter() - start,
+        }
+        stats.update(evaluate_network(net, data))
+        return net, stats
+    finally:
+        torch.set_num_threads(prev_threads)
+
+
+def _tensors(data: KeyframeDataset) -> dict[str, torch.Tensor]:
+    name_idx = torch.as_tensor(data.name_idx, dtype=torch.long)
+    return {
+        "instr": torch.as_tensor(data.instr_table, dtype=torch.float32)[torch.as_tensor(data.instr_idx)],
+        "proprio": torch.as_tensor(data.proprio, dtype=torch.float32),
+        "name_table": torch.as_tensor(data.name_table, dtype=torch.float32),
+        "name_idx": name_idx,
+        "pos": torch.as_tensor(data.pos, dtype=torch.float32),
+        "yaw": torch.as_tensor(data.yaw, dtype=torch.float32),
+        "state": torch.as_tensor(data.state, dtype=torch.float32),
+        "target": torch.as_tensor(data.target, dtype=torch.float32),
+    }
+
+
+def _inputs(t: dict[str, torch.Tensor], idx: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    name_idx = t["name_idx"][idx]
+    mask = name_idx >= 0
+    names = t["name_table"][name_idx.clamp(min=0)]
+    return (t["instr"][idx], t["proprio"][idx], names, t["pos"][idx], t["yaw"][idx],
+            t["state"][idx], mask)
+
+
+@torch.no_grad()
+def evaluate_network(net: KeyframeNet, data: KeyframeDataset, batch: int = 4096) -> dict:
+    """Mean position error (m), orientation error (deg) and gripper accuracy of the selected keyframes."""
+    t = _tensors(data)
+    pos_err, rot_err, grip_ok = [], [], []
+    for s in range(0, len(data), batch):
+        idx = torch.arange(s, min(s + batch, len(data)))
+        sel = KeyframeNet.select(net(*_inputs(t, idx)))
+        tgt = t["target"][idx]
+        pos_err.append((sel["position"] - tgt[:, :3]).norm(dim=-1))
+        dot = (sel["quaternion"] * tgt[:, 3:7]).sum(-1).abs().clamp(max=1.0)
+        rot_err.append(torch.rad2deg(2 * torch.acos(dot)))
+        grip_ok.append(((sel["gripper_open"] >= 0.5).float() == (tgt[:, 7] >= 0.5).float()).float())
+    pe, re_, go = torch.cat(pos_err), torch.cat(rot_err), torch.cat(grip_ok)
+    return {
+        "pos_err_mean_m": float(pe.mean()),
+        "pos_err_p90_m": float(pe.quantile(0.9)),
+        "rot_err_mean_deg": float(re_.mean()),
+        "gripper_acc": float(go.mean()),
+    }
+
+
+def cache_key(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainConfig) -> str:
+    """Hash of everything that determines a trained network."""
+    payload = json.dumps({"data": data.fingerprint(), "net": net_cfg.to_dict(),
+                          "train": {k: v for k, v in asdict(train_cfg).items() if k != "threads"},
+                          "version": 1}, sort_keys=True)
+    return hashlib.sha256(payload.encode()).hexdigest()[:24]
+
+
+def save_checkpoint(path: Path, net: KeyframeNet, meta: dict) -> None:
+    """Write ``{state_dict, net config, meta}`` atomically."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    os.close(fd)
+    torch.save({"state_dict": net.state_dict(), "net_cfg": net.cfg.to_dict(), "meta": meta}, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: Path) -> tuple[KeyframeNet, dict]:
+    """Inverse of :func:`save_checkpoint`."""
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"no policy checkpoint at {path}")
+    blob = torch.load(path, map_location="cpu", weights_only=False)
+    net = KeyframeNet(NetConfig(**blob["net_cfg"]))
+    net.load_state_dict(blob["state_dict"])
+    net.eval()
+    return net, blob["meta"]
