@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 from envs.tasks.base import Task
+from envs.tasks.close_jar import CloseJar
+from envs.tasks.insert_onto_square_peg import InsertOntoSquarePeg
+from envs.tasks.light_bulb_in import LightBulbIn
+from envs.tasks.meat_off_grill import MeatOffGrill
 from envs.tasks.open_drawer import OpenDrawer
 from envs.tasks.stack_blocks import StackBlocks
 
-TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (OpenDrawer, StackBlocks)}
+TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (
+    OpenDrawer, StackBlocks, MeatOffGrill, CloseJar, InsertOntoSquarePeg, LightBulbIn,
+)}
 
 
 def get_task(name: str) -> Task:

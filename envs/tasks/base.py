@@ -56,6 +56,14 @@ def yaw_of(quaternion) -> float:
     return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
+def finger_yaw(hand_quaternion) -> float:
+    """Finger-opening direction (yaw) of a hand orientation."""
+    import pybullet as pb
+
+    m = np.array(pb.getMatrixFromQuaternion(list(hand_quaternion))).reshape(3, 3)
+    return float(np.arctan2(m[1, 1], m[0, 1]))
+
+
 def sample_positions(rng: np.random.Generator, n: int, x_range, y_range, min_dist: float,
                      avoid=(), tries: int = 2000) -> list[np.ndarray]:
     """``n`` xy positions in the box, at least ``min_dist`` apart and from ``avoid``."""
@@ -206,6 +214,17 @@ class Task(ABC):
             Waypoint(np.array([x, y, release_z]), q, True, f"place the {label} {preposition} the {dest}"),
             Waypoint(np.array([x, y, release_z + retreat]), q, True, "move the gripper up"),
         ]
+
+    def carry(self, obj_name: str, label: str, dest: str, object_target, yaw: float | None = None,
+              above: float = 0.1, preposition: str = "onto") -> list[Waypoint]:
+        """``place`` for the held ``obj_name`` so that the object (not the hand) ends at
+        ``object_target``; the hand keeps its grasp offset. ``yaw`` None keeps the hand's yaw."""
+        obj_pos, _ = self.pose(obj_name)
+        ee = self.scene.ee_pose()
+        if yaw is None:
+            yaw = finger_yaw(ee[3:])
+        target = np.asarray(object_target, dtype=np.float64) + (ee[:3] - obj_pos)
+        return self.place(label, dest, target, yaw, float(target[2]), above, preposition)
 
     @staticmethod
     def retreat(position, yaw: float, z: float, label: str = "move the gripper away") -> Waypoint:
