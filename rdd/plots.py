@@ -1,0 +1,111 @@
+"""Timeline figures like the RDD paper's qualitative figure: one row per method (and ground truth),
+coloured segments with their boundaries, and the keyframe of each segment as a thumbnail."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from rdd.data.episode import Episode
+from rdd.segments import Segment, validate_segments
+
+PanelSpec = tuple[Episode, Mapping[str, Sequence[Segment]], Sequence[Segment] | None]
+
+
+def _thumbnail(image: np.ndarray, height: int = 48) -> np.ndarray:
+    """Nearest-neighbour downscale to ``height`` pixels tall (keeps aspect ratio)."""
+    h, w = image.shape[:2]
+    if h <= height:
+        return image
+    rows = (np.arange(height) * h / height).astype(int)
+    width = max(1, round(w * height / h))
+    cols = (np.arange(width) * w / width).astype(int)
+    return image[rows][:, cols]
+
+
+def _draw_row(ax, segments: Sequence[Segment], num_frames: int, thumbs: dict[int, np.ndarray],
+              y: float, max_thumbs: int) -> None:
+    """Segments as alternating bars at height ``y``, boundaries as lines, keyframe thumbnails."""
+    from matplotlib.offsetbox import AnnotationBbox, OffsetImage
+
+    colours = ["#4C72B0", "#DD8452"]
+    for j, (s, e) in enumerate(segments):
+        ax.broken_barh([(s, e - s)], (y - 0.18, 0.36), facecolors=colours[j % 2], alpha=0.85)
+        if j:
+            ax.vlines(s, y - 0.45, y + 0.45, colors="k", linewidth=1.0)
+    keyframes = [e - 1 for _, e in segments]
+    shown = keyframes if len(keyframes) <= max_thumbs else [
+        keyframes[int(i)] for i in np.linspace(0, len(keyframes) - 1, max_thumbs).round()
+    ]
+    zoom = min(1.0, 8.0 / max(len(shown), 1))
+    for k in shown:
+        box = AnnotationBbox(OffsetImage(thumbs[k], zoom=zoom), (k, y + 0.62), frameon=True,
+                             pad=0.1, box_alignment=(0.5, 0.5))
+        ax.add_artist(box)
+        ax.plot([k, k], [y + 0.18, y + 0.4], color="0.4", linewidth=0.6)
+
+
+def plot_timelines(
+    panels: Sequence[PanelSpec],
+    out: str | Path,
+    view: str | None = None,
+    gt_label: str = "ground truth",
+    max_thumbs: int = 10,
+    thumb_height: int = 48,
+) -> Path:
+    """Draw one panel per (episode, {method: segments}, ground truth or None) and save a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not panels:
+        raise ValueError("nothing to plot: no episodes given")
+    n_rows = [len(rows) + (gt is not None) for _, rows, gt in panels]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(14, sum(1.25 * r + 0.6 for r in n_rows)),
+                             squeeze=False, gridspec_kw={"height_ratios": n_rows})
+    for ax, (episode, rows, gt), count in zip(axes[:, 0], panels, n_rows, strict=True):
+        t = episode.num_frames
+        named = ([(gt_label, gt)] if gt is not None else []) + list(rows.items())
+        checked = []
+        for label, segs in named:
+            try:
+                checked.append((label, validate_segments(segs, t)))
+            except ValueError as exc:
+                raise ValueError(f"episode {episode.name!r}, row {label!r}: {exc}") from exc
+        cam = view or next(iter(episode.views), None)
+        keys = sorted({e - 1 for _, segs in checked for _, e in segs})
+        thumbs: dict[int, np.ndarray] = {}
+        if cam is not None:
+            if cam not in episode.views:
+                raise ValueError(f"episode {episode.name!r} has no view {cam!r}; has {sorted(episode.views)}")
+            for k, img in zip(keys, episode.frames(cam, keys), strict=True):
+                thumbs[k] = _thumbnail(img, thumb_height)
+        else:
+            thumbs = {k: np.zeros((thumb_height, thumb_height, 3), np.uint8) for k in keys}
+        for i, (_label, segs) in enumerate(checked):
+            _draw_row(ax, segs, t, thumbs, y=count - 1 - i, max_thumbs=max_thumbs)
+        ax.set_yticks([count - 1 - i for i in range(count)])
+        ax.set_yticklabels([f"{label} ({len(segs)})" for label, segs in checked])
+        ax.set_xlim(-0.5, t - 0.5)
+        ax.set_ylim(-0.6, count - 1 + 1.1)
+        ax.set_xlabel("frame")
+        goal = f": {episode.goal}" if episode.goal else ""
+        ax.set_title(f"{episode.name} ({t} frames){goal}", fontsize=10, loc="left")
+        ax.grid(axis="x", alpha=0.3)
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.stem}.", suffix=".png")
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, out)
+    finally:
+        plt.close(fig)
+        Path(tmp).unlink(missing_ok=True)
+    return out

@@ -1,0 +1,138 @@
+"""VLM baseline against a real HTTP server on 127.0.0.1 that answers like a chat endpoint."""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import numpy as np
+import pytest
+
+from rdd.data.episode import Episode
+from rdd.decomposers.vlm import (
+    OpenAIChatBackend,
+    TransformersVLMBackend,
+    VLMDecomposer,
+    VLMError,
+    parse_keyframe_indices,
+    subsample_indices,
+)
+
+SECRET = "sk-test-secret-value-123"
+
+
+class FakeEndpoint:
+    """A chat-completions server whose answers, failures and delays the test scripts."""
+
+    def __init__(self):
+        self.requests: list[dict] = []
+        self.script: list[tuple[int, str, float]] = []  # (status, content, delay)
+        server = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self):  # noqa: N802 - http.server API
+                body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
+                server.requests.append({"path": self.path, "auth": self.headers.get("Authorization"),
+                                        "body": body})
+                status, content, delay = server.script.pop(0) if server.script else (200, "[]", 0)
+                time.sleep(delay)
+                payload = json.dumps({"choices": [{"message": {"role": "assistant", "content": content}}]})
+                try:
+                    self.send_response(status)
+                    self.send_header("Content-Type", "application/json")
+                    self.end_headers()
+                    self.wfile.write(payload.encode())
+                except (BrokenPipeError, ConnectionResetError):
+                    pass
+
+            def log_message(self, *args):
+                pass
+
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
+        self.thread.start()
+        self.base_url = f"http://127.0.0.1:{self.httpd.server_address[1]}/v1"
+
+    def close(self):
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+@pytest.fixture
+def endpoint():
+    ep = FakeEndpoint()
+    yield ep
+    ep.close()
+
+
+def episode(t=40):
+    frames = np.zeros((t, 12, 16, 3), dtype=np.uint8)
+    frames[..., 0] = np.arange(t, dtype=np.uint8)[:, None, None] * 5
+    return Episode(name="demo", views={"front": frames}, goal="open the drawer")
+
+
+def test_parsing():
+    assert parse_keyframe_indices("Keyframes: [7, 3, 3, 99, -2] then [1]", 10) == [0, 3, 7, 9]
+    assert parse_keyframe_indices("```json\n[ 4 ,5, ]\n```", 10) == [4, 5]
+    with pytest.raises(VLMError, match="no list of integers"):
+        parse_keyframe_indices("I think frames four and five.", 10)
+    with pytest.raises(VLMError, match="no list"):
+        parse_keyframe_indices("[]", 10)
+
+
+def test_subsample_maps_back():
+    idx = subsample_indices(100, 16)
+    assert idx[0] == 0 and idx[-1] == 99 and len(idx) == 16 and np.all(np.diff(idx) > 0)
+    assert subsample_indices(5, 16).tolist() == [0, 1, 2, 3, 4]
+
+
+def test_decompose_through_http(endpoint, monkeypatch, caplog):
+    monkeypatch.setenv("MY_VLM_KEY", SECRET)
+    endpoint.script = [(200, "The keyframes are [2, 5] and the end.", 0)]
+    dec = VLMDecomposer(base_url=endpoint.base_url, model="tiny-vlm", api_key_env="MY_VLM_KEY",
+                        max_frames=8, retries=0)
+    with caplog.at_level(logging.DEBUG):
+        out = dec.decompose(episode(40))
+    shown = subsample_indices(40, 8)
+    assert out.keyframes == [int(shown[2]), int(shown[5]), 39]
+    assert out.segments[0] == (0, int(shown[2]) + 1)
+    req = endpoint.requests[0]
+    assert req["path"] == "/v1/chat/completions" and req["auth"] == f"Bearer {SECRET}"
+    content = req["body"]["messages"][0]["content"]
+    assert req["body"]["model"] == "tiny-vlm"
+    assert "segmented into multiple steps" in content[0]["text"] and "starts from 0" in content[0]["text"]
+    assert "open the drawer" in content[0]["text"]
+    images = [c for c in content if c["type"] == "image_url"]
+    assert len(images) == 8 and images[0]["image_url"]["url"].startswith("data:image/png;base64,")
+    assert SECRET not in caplog.text
+
+
+def test_retries_then_success_and_timeout(endpoint, caplog):
+    endpoint.script = [(500, "", 0), (503, "", 0), (200, "[1]", 0)]
+    backend = OpenAIChatBackend(endpoint.base_url, "m", api_key_env=None, retries=2, backoff=0.01)
+    assert backend.ask("p", [np.zeros((4, 4, 3), np.uint8)], ["Frame 0:"]) == "[1]"
+    assert len(endpoint.requests) == 3
+    endpoint.script = [(200, "[1]", 0.6), (200, "[1]", 0.6)]
+    slow = OpenAIChatBackend(endpoint.base_url, "m", api_key_env=None, timeout=0.2, retries=1, backoff=0.01)
+    with pytest.raises(VLMError, match="failed after 2 attempts"):
+        slow.ask("p", [], [])
+    endpoint.script = [(400, "", 0)]
+    with pytest.raises(VLMError, match="HTTP 400"):
+        OpenAIChatBackend(endpoint.base_url, "m", api_key_env=None, retries=3).ask("p", [], [])
+
+
+def test_unusable_answer_is_a_clear_error(endpoint):
+    endpoint.script = [(200, "Sorry, I cannot tell.", 0)]
+    dec = VLMDecomposer(base_url=endpoint.base_url, model="m", api_key_env=None, retries=0)
+    with pytest.raises(VLMError, match="'demo'.*no list of integers"):
+        dec.decompose(episode(10))
+
+
+def test_local_checkpoint_missing_is_clear(tmp_path):
+    with pytest.raises(FileNotFoundError, match="VLM checkpoint"):
+        TransformersVLMBackend(tmp_path / "nope")
+    with pytest.raises(ValueError, match="base_url"):
+        VLMDecomposer(base_url="", model="m")
