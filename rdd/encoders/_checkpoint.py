@@ -69,13 +69,44 @@ def load_state(path: Path, name: str) -> dict[str, Any]:
 
 
 def load_strict(module, state: dict[str, Any], name: str, path: Path | str) -> None:
-    """``module.load_state_dict(state, strict=True)`` with an error naming the file and key mismatch."""
-    result_missing = sorted(set(module.state_dict()) - set(state))
-    result_unexpected = sorted(set(state) - set(module.state_dict()))
-    if result_missing or result_unexpected:
+    """Load ``state`` into ``module`` requiring an exact key match; the error names file and keys."""
+    result = module.load_state_dict(state, strict=False)
+    if result.missing_keys or result.unexpected_keys:
         raise ValueError(
             f"encoder {name!r}: checkpoint {str(path)!r} does not match the official layout: "
-            f"{len(result_missing)} missing keys {result_missing[:5]}, "
-            f"{len(result_unexpected)} unexpected keys {result_unexpected[:5]}"
+            f"{len(result.missing_keys)} missing keys {list(result.missing_keys)[:5]}, "
+            f"{len(result.unexpected_keys)} unexpected keys {list(result.unexpected_keys)[:5]}"
         )
-    module.load_state_dict(state, strict=True)
+
+
+def take_prefix(
+    state: Any, prefix: str, name: str, path: Path | str, ignore: tuple[str, ...] = ()
+) -> dict[str, Any]:
+    """Keys of ``state`` under ``prefix`` with the prefix removed; keys under ``ignore`` prefixes are
+    dropped (parts the official encoder does not use); any other key is an error."""
+    if not isinstance(state, dict):
+        raise ValueError(f"encoder {name!r}: checkpoint {str(path)!r} holds {type(state).__name__}, not a state dict")
+    out, stray = {}, []
+    for key, value in state.items():
+        if key.startswith(prefix):
+            out[key[len(prefix):]] = value
+        elif not key.startswith(ignore):
+            stray.append(key)
+    if stray or not out:
+        raise ValueError(
+            f"encoder {name!r}: checkpoint {str(path)!r} is not in the official layout: expected keys under "
+            f"{prefix!r}" + (f" (and {list(ignore)})" if ignore else "")
+            + (f"; found {len(out)} such keys and unexpected keys {stray[:5]}" if stray else "; found none")
+        )
+    return out
+
+
+def take_entry(obj: Any, entry: str, name: str, path: Path | str) -> Any:
+    """``obj[entry]`` (e.g. the ``'r3m'`` dict of R3M's ``model.pt``) or an error naming what was found."""
+    if not isinstance(obj, dict) or entry not in obj:
+        found = sorted(obj)[:8] if isinstance(obj, dict) else type(obj).__name__
+        raise ValueError(
+            f"encoder {name!r}: checkpoint {str(path)!r} has no {entry!r} entry (found {found}); "
+            f"is it the official file?"
+        )
+    return obj[entry]

@@ -1,0 +1,96 @@
+"""Builder shared by the paper's seven encoders: architecture + official checkpoint + preprocessing.
+
+Preprocessing follows how the official RDD code calls these encoders (through UVD's preprocessors):
+``Resize(224)`` (shorter side, bilinear, antialiased) then the model's normalisation; torchvision's
+ImageNet ResNet-50 uses its weights' own transform (``Resize(232)``, ``CenterCrop(224)``). RDD squares
+frames before that; here a centre crop to 224x224 does the same job for non-square frames, and is a
+no-op for square ones.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rdd.encoders._common import TorchEncoder
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class OfficialSpec:
+    """What defines one of the paper's encoders."""
+
+    name: str
+    dim: int
+    filename: str  # the official checkpoint's file name
+    source: str  # where the official project publishes it
+    make_model: Callable[[], Any]  # -> torch.nn.Module with random weights
+    extract: Callable[[Any, Path], dict]  # loaded checkpoint object -> the model's state dict
+    mean: tuple[float, float, float]
+    std: tuple[float, float, float]
+    resize: int = 224
+    crop: int = 224
+    interpolation: str = "bilinear"
+
+
+def make_preprocess(spec: OfficialSpec) -> tuple[Callable[[np.ndarray], Any], str]:
+    """The preprocessing function of ``spec`` and a string describing it (part of cache keys)."""
+    from rdd.encoders._preprocess import center_crop, normalize, resize_shorter, to_float_tensor
+
+    def preprocess(images: np.ndarray):
+        x = resize_shorter(to_float_tensor(images), spec.resize, spec.interpolation)
+        return normalize(center_crop(x, spec.crop), spec.mean, spec.std)
+
+    pid = (f"resize{spec.resize}-{spec.interpolation}-aa/centercrop{spec.crop}/"
+           f"mean{list(spec.mean)}/std{list(spec.std)}")
+    return preprocess, pid
+
+
+def build_official(
+    spec: OfficialSpec,
+    *,
+    checkpoint: str | None = None,
+    random_weights: bool = False,
+    seed: int = 0,
+    batch_size: int = 16,
+    num_threads: int | None = None,
+) -> TorchEncoder:
+    """Build ``spec``'s encoder with its official weights (``checkpoint`` or ``$RDD_WEIGHTS_DIR``).
+
+    ``random_weights=True`` skips the checkpoint and uses a seeded random initialisation: only for
+    checking the architecture and measuring its speed; its embeddings carry no pretrained meaning.
+    """
+    import torch
+
+    from rdd.encoders._checkpoint import load_state, load_strict, resolve_checkpoint
+
+    if random_weights:
+        if checkpoint is not None:
+            raise ValueError(f"encoder {spec.name!r}: give either checkpoint or random_weights=true, not both")
+        log.warning("encoder %s built with RANDOM weights (architecture/speed checks only)", spec.name)
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(int(seed))
+            model = spec.make_model()
+        path = None
+    else:
+        path = resolve_checkpoint(spec.name, checkpoint, spec.filename, spec.source)
+        model = spec.make_model()
+        load_strict(model, spec.extract(load_state(path, spec.name), path), spec.name, path)
+    model = model.float().eval()
+    preprocess, pid = make_preprocess(spec)
+    return TorchEncoder(
+        name=spec.name,
+        dim=spec.dim,
+        model=model,
+        preprocess=preprocess,
+        preprocess_id=pid,
+        batch_size=batch_size,
+        num_threads=num_threads,
+        checkpoint=None if path is None else str(path),
+    )

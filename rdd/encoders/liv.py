@@ -1,0 +1,57 @@
+"""``liv``: LIV (Ma et al. 2023) image encoder: CLIP RN50 architecture fine-tuned by LIV, 1024-d.
+
+Official checkpoint: ``model.pt`` (penn-pal-lab/LIV, ``load_liv("resnet50")``; Hugging Face
+``jasonyma/LIV``), a dict ``{"liv": {"module.model.visual.*", "module.model.<text tower>"}}``; the
+image features are ``model.encode_image`` = the visual tower. Inputs: ``Resize(224)`` and CLIP's
+normalisation (LIV's ``transforms_tensor`` and RDD/UVD's LIV preprocessor).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from rdd.encoders._common import TorchEncoder
+from rdd.encoders._official import OfficialSpec, build_official
+from rdd.encoders._preprocess import CLIP_MEAN, CLIP_STD
+
+
+def _make_model():
+    """CLIP RN50 visual tower (LIV ships OpenAI's clip/model.py unchanged)."""
+    from rdd.encoders._clip_resnet import ModifiedResNet
+
+    return ModifiedResNet()
+
+
+def _extract(obj: Any, path: Path) -> dict:
+    """The official checkpoint object -> this model's state dict."""
+    from rdd.encoders._checkpoint import take_entry, take_prefix
+
+    sd = take_entry(obj, "liv", "liv", path)
+    return take_prefix(sd, "module.model.visual.", "liv", path, ignore=("module.model.",))
+
+
+SPEC = OfficialSpec(
+    name="liv",
+    dim=1024,
+    filename="model.pt",
+    source="https://huggingface.co/jasonyma/LIV/blob/main/model.pt (penn-pal-lab/LIV, liv/__init__.py)",
+    mean=CLIP_MEAN,
+    std=CLIP_STD,
+    make_model=_make_model,
+    extract=_extract,
+)
+
+
+def build(
+    checkpoint: str | None = None,
+    random_weights: bool = False,
+    seed: int = 0,
+    batch_size: int = 16,
+    num_threads: int | None = None,
+) -> TorchEncoder:
+    """The ``liv`` encoder from its official checkpoint (see the module docstring)."""
+    return build_official(
+        SPEC, checkpoint=checkpoint, random_weights=random_weights, seed=seed,
+        batch_size=batch_size, num_threads=num_threads,
+    )
