@@ -146,3 +146,31 @@ def test_search_input_errors():
         ExactIndex().fit(np.ones((3, 2)), np.ones((3, 3)))
     with pytest.raises(ValueError, match="empty"):
         ExactIndex().fit(np.ones((0, 2)), np.ones((0, 2)))
+
+
+def test_exact_pruning_skips_entries_and_stays_exact():
+    rng = np.random.default_rng(6)
+    d, t = 32, 80
+    # a database of sub-tasks between a few waypoints, and a demo walking through the same waypoints
+    way = clustered(rng, 30, d, clusters=30, spread=0.0)
+    pairs = rng.integers(30, size=(4000, 2))
+    begin = l2_normalize(way[pairs[:, 0]] + 0.05 * rng.normal(size=(4000, d)))
+    end = l2_normalize(way[pairs[:, 1]] + 0.05 * rng.normal(size=(4000, d)))
+    path = way[rng.integers(30, size=5)]
+    fv = l2_normalize(np.concatenate([np.linspace(path[i], path[i + 1], 16, endpoint=False) for i in range(4)]
+                                     + [path[4:5].repeat(16, 0)]))
+    starts, ends = np.meshgrid(np.arange(t), np.arange(1, t + 1), indexing="ij")
+    keep = (ends - starts >= 2) & (ends - starts <= 30)
+    s, e = starts[keep], ends[keep]
+    pruned = ExactIndex(prune=True, block_size=16).fit(begin, end)
+    ids, dist = pruned.search_intervals(fv, s, e)
+    assert pruned.last_searched_fraction < 0.5  # the bounds really skip blocks here
+    dense = ExactIndex(prune=False).fit(begin, end)
+    ids_d, dist_d = dense.search_intervals(fv, s, e)
+    assert dense.last_searched_fraction == pytest.approx(1.0)
+    np.testing.assert_allclose(dist, dist_d, atol=1e-6)
+    ref_ids, ref_dist, cos = brute_force(np.concatenate([fv[s], fv[e - 1]], 1), begin, end)
+    np.testing.assert_allclose(dist, ref_dist, atol=1e-5)
+    top2 = np.sort(cos, axis=1)[:, -2:]
+    clear = top2[:, 1] - top2[:, 0] > 1e-5
+    np.testing.assert_array_equal(ids[clear], ref_ids[clear])
