@@ -84,21 +84,40 @@ class RunRecord:
 
     @property
     def method(self) -> str:
-        """Label of the variant this run measures: its overrides other than seed (or its decomposer)."""
-        if self.data.get("label"):
-            return str(self.data["label"])
-        return method_label(self.data.get("overrides", []), self.data.get("choices", {}))
+        """Label of the variant this run measures (set by ``assign_labels``, else its decomposer)."""
+        return str(self.data.get("_label") or self.data.get("choices", {}).get("decomposer", "run"))
+
+
+IGNORED_KEYS = ("seed", "paths.", "wandb.", "hydra.", "print_table", "threads")
+
+
+def _parse_overrides(overrides: Iterable[str]) -> dict[str, str]:
+    out = {}
+    for ov in overrides:
+        key, _, value = str(ov).lstrip("+~").partition("=")
+        if not key.startswith(IGNORED_KEYS):
+            out[key] = value
+    return out
+
+
+def assign_labels(runs: Sequence[RunRecord]) -> None:
+    """Label each run by the overrides that vary across ``runs`` (seed excluded).
+
+    A sweep ``decomposer=rdd,uvd seed=0,1`` gives labels ``rdd`` / ``uvd``; an alpha sweep gives
+    ``alpha=0.5``; runs that differ in nothing but the seed fall back to their decomposer.
+    """
+    parsed = [_parse_overrides(r.data.get("overrides", [])) for r in runs]
+    keys = sorted({k for p in parsed for k in p})
+    varying = [k for k in keys if len({p.get(k) for p in parsed}) > 1]
+    for run, p in zip(runs, parsed, strict=True):
+        run.data["_label"] = method_label([f"{k}={p[k]}" for k in varying if k in p],
+                                          run.data.get("choices", {}))
 
 
 def method_label(overrides: Iterable[str], choices: dict[str, Any]) -> str:
-    """``decomposer=rdd,encoder=liv`` -> ``rdd, liv``; falls back to the decomposer choice."""
+    """``["decomposer=rdd", "decomposer.alpha=0.5"]`` -> ``rdd, alpha=0.5``; else the decomposer."""
     parts = []
-    for ov in overrides:
-        key, _, value = str(ov).lstrip("+~").partition("=")
-        if key in {"seed", "experiment"} or key.startswith("hydra") or key.startswith("paths."):
-            continue
-        if key.startswith(("eval.", "wandb.", "threads", "print_table", "tasks")):
-            continue
+    for key, value in _parse_overrides(overrides).items():
         parts.append(value if "." not in key else f"{key.rsplit('.', 1)[-1]}={value}")
     if parts:
         return ", ".join(parts)

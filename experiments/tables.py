@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.results import RunRecord, load_runs
+from experiments.results import RunRecord, assign_labels, load_runs
 
 
 def _natural_key(path: Path) -> list[object]:
@@ -272,7 +272,7 @@ def plot_success(runs: Sequence[RunRecord], path: Path, title: str) -> bool:
     ax.set_xticks(np.arange(len(tasks)), [t.replace("_", "\n") for t in tasks], fontsize=7)
     ax.set_ylabel("success (%)")
     ax.set_ylim(0, 105)
-    ax.set_title(title)
+    ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7, ncols=min(len(methods), 5))
     fig.tight_layout()
     _save_fig(fig, path)
@@ -334,6 +334,7 @@ def build_tables(runs: Sequence[RunRecord]) -> dict[str, list[Table]]:
         by_exp[run.experiment].append(run)
     out: dict[str, list[Table]] = {}
     for exp, eruns in by_exp.items():
+        assign_labels(eruns)
         title = TITLES.get(exp, f"Experiment {exp}")
         tables = [
             success_table(title, eruns),
@@ -366,7 +367,7 @@ def write_tables(runs_dir: Path, out_dir: Path | None = None) -> tuple[str, list
             tmp.replace(path)
             written.append(path)
         png = out_dir / f"{exp}_success.png"
-        if plot_success(by_exp[exp], png, TITLES.get(exp, exp)):
+        if plot_success(by_exp[exp], png, f"{exp}: success per task (mean ± std over seeds)"):
             written.append(png)
         png = out_dir / f"{exp}_speed.png"
         if plot_speed(by_exp[exp], png):

@@ -107,3 +107,18 @@ def test_bad_inputs_name_the_file(tmp_path: Path):
     bad.write_text("{not json")
     with pytest.raises(ValueError, match=str(bad)):
         write_tables(tmp_path)
+
+
+def test_labels_come_from_the_swept_overrides(tmp_path: Path):
+    from experiments.results import RunRecord, assign_labels
+
+    def rec(overrides: list[str]) -> RunRecord:
+        return RunRecord(tmp_path, {"overrides": overrides, "choices": {"decomposer": "rdd"}})
+
+    runs = [rec(["experiment=abl_alpha", f"decomposer.alpha={a}", f"seed={s}", "paths.cache_dir=/c"])
+            for a in (0, 0.5) for s in (0, 1)]
+    assign_labels(runs)
+    assert [r.method for r in runs] == ["alpha=0", "alpha=0", "alpha=0.5", "alpha=0.5"]
+    single = [rec(["seed=3"])]
+    assign_labels(single)
+    assert single[0].method == "rdd"
