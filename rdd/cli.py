@@ -155,9 +155,13 @@ def cmd_build_db(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise CLIError(f"--data {args.data}: {exc}") from exc
     cache = make_cache(args)
-    db = SubtaskDatabase.build(
-        list(progress(episodes, "embedding")), segmentations, encoder, views=views, cache=cache
-    )
+    if cache is not None:
+        from rdd.encoders.embed import episode_frame_vectors
+
+        # Fill the cache episode by episode so the progress bar shows the slow part (encoding).
+        for ep in progress(episodes, f"embedding ({encoder.name})"):
+            episode_frame_vectors(ep, encoder, views=views, cache=cache)
+    db = SubtaskDatabase.build(episodes, segmentations, encoder, views=views, cache=cache)
     db.meta["source"] = {"format": args.format, "data": str(args.data),
                          "episodes": [e.name for e in episodes], "segmenter": "expert"}
     out = db.save(args.out)
@@ -330,7 +334,10 @@ def cmd_plot(args: argparse.Namespace) -> int:
         if data is None:
             raise CLIError(f"--pred {path}: no such file")
         label = labels[i] if labels else str((data.get("config") or {}).get("decomposer") or Path(path).stem)
-        rows[label] = {n: r["segments"] for n, r in read_segments_file(path).items()}
+        # Files with the same label (e.g. leave-one-out folds) merge into one row.
+        rows.setdefault(label, {}).update(
+            {n: r["segments"] for n, r in read_segments_file(path).items()}
+        )
     gt = {n: r["segments"] for n, r in read_segments_file(args.gt).items()} if args.gt else {}
     names = args.episode or [n for n in episodes if any(n in r for r in rows.values())]
     if not names:
@@ -353,9 +360,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
         from rdd.demo import run_demo
     except ImportError as exc:
         raise CLIError(f"demo: rdd.demo is not available ({exc})") from exc
-    result = run_demo()
-    if result is not None:
-        print(json.dumps(result, indent=1, default=str) if not isinstance(result, str) else result)
+    result = run_demo(seed=args.seed, backend=args.backend)  # prints its own summary
+    if args.json:
+        write_json_atomic(args.json, json.loads(json.dumps(result, default=str)))
+        print(f"wrote {args.json}")
     return 0
 
 
@@ -428,6 +436,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("demo", help="run the end-to-end demo")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--backend", default="exact", help="retrieval backend: exact, annoy or faiss")
+    p.add_argument("--json", help="also write the demo's summary here")
     p.set_defaults(func=cmd_demo)
     return parser
 

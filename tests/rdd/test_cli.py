@@ -116,3 +116,9 @@ def test_module_entry_point():
     assert res.returncode == 0
     for cmd in ("build-db", "decompose", "evaluate", "plot", "demo"):
         assert cmd in res.stdout
+
+
+def test_demo_subcommand(tmp_path, capsys):
+    assert run("demo", "--json", tmp_path / "demo.json") == 0
+    assert (tmp_path / "demo.json").is_file()
+    assert "novelty" in capsys.readouterr().out
