@@ -57,6 +57,7 @@ class Controller:
         min_duration: float = 0.45,
         ramp: float = 0.1,
         max_ik_error: float = 0.01,
+        arrive_tolerance: float = 0.015,
         on_frame: Callable[[], None] | None = None,
     ):
         self.scene = scene
@@ -65,12 +66,15 @@ class Controller:
         self.min_duration = float(min_duration)
         self.ramp = float(ramp)
         self.max_ik_error = float(max_ik_error)
+        self.arrive_tolerance = float(arrive_tolerance)
         self.on_frame = on_frame
 
     def plan(self, position, quaternion) -> tuple[np.ndarray | None, float]:
         """Joint waypoints along the straight path to the pose, or None when unreachable."""
         scene = self.scene
-        start_q = scene.arm_target.copy()
+        # Plan from where the arm is (not where it was told to go), so a motion that ended
+        # short of its target does not make the next one start with a dead band.
+        start_q = scene.arm_state()[0]
         for j, q in enumerate(start_q):
             scene.ik.resetJointState(scene.ik_robot, j, q)
         s = scene.ik.getLinkState(scene.ik_robot, 11, computeForwardKinematics=True)
@@ -148,6 +152,7 @@ class Controller:
         if path is None:
             return MotionResult("unreachable", 0, float(err))
         targets, vels, duration = self._profile(path)
+        goal = np.asarray(position, dtype=np.float64)
         frames = 0
         tick = 0
         limit = len(targets) + int(timeout * PHYSICS_HZ)
@@ -166,7 +171,10 @@ class Controller:
             if tick % self.ticks_per_frame:
                 continue
             _, qd = scene.arm_state()
-            arrived = tick >= 0.5 * len(targets) and np.all(np.abs(qd) <= STOP_VELOCITY)
+            # Arrived: at rest by the keyframe rule's measure, and at the target (a motion
+            # blocked by contact comes to rest elsewhere and runs into the timeout).
+            arrived = (tick >= 0.5 * len(targets) and np.all(np.abs(qd) <= STOP_VELOCITY)
+                       and np.linalg.norm(scene.ee_pose()[:3] - goal) < self.arrive_tolerance)
             if arrived:
                 # Hold the rest of the (sub-millimetre) deceleration tail as the target.
                 scene.arm_target = path[-1]

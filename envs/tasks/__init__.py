@@ -8,10 +8,15 @@ from envs.tasks.insert_onto_square_peg import InsertOntoSquarePeg
 from envs.tasks.light_bulb_in import LightBulbIn
 from envs.tasks.meat_off_grill import MeatOffGrill
 from envs.tasks.open_drawer import OpenDrawer
+from envs.tasks.place_shape_in_shape_sorter import PlaceShapeInShapeSorter
+from envs.tasks.push_buttons import PushButtons
+from envs.tasks.put_item_in_drawer import PutItemInDrawer
 from envs.tasks.stack_blocks import StackBlocks
+from envs.tasks.turn_tap import TurnTap
 
 TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (
-    OpenDrawer, StackBlocks, MeatOffGrill, CloseJar, InsertOntoSquarePeg, LightBulbIn,
+    OpenDrawer, PutItemInDrawer, StackBlocks, MeatOffGrill, PushButtons, TurnTap,
+    PlaceShapeInShapeSorter, CloseJar, InsertOntoSquarePeg, LightBulbIn,
 )}
 
 

@@ -1,0 +1,77 @@
+"""put_item_in_drawer: open the named drawer and put the block from the cabinet top inside."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from envs.scene import Scene, top_down_quat
+from envs.tasks.base import Task, Waypoint, yaw_of
+from envs.tasks.cabinet import DEPTH, DRAWER_H, build_cabinet, pull_drawer_waypoints
+
+ITEM_HALF = 0.02
+
+
+class PutItemInDrawer(Task):
+    """Open the named drawer, pick the item from the cabinet top, drop it in the drawer."""
+
+    name = "put_item_in_drawer"
+    description = "open the named drawer and put the item in it"
+
+    def variations(self):
+        """Which drawer."""
+        return [{"drawer": d} for d in ("top", "middle", "bottom")]
+
+    def build(self, scene: Scene, rng: np.random.Generator) -> None:
+        """Cabinet to one side with a block on its top."""
+        side = rng.choice([-1.0, 1.0])
+        cab = build_cabinet(scene, self, rng.uniform(0.57, 0.61), side * rng.uniform(0.09, 0.14))
+        self.cabinet = cab
+        yaw = rng.uniform(-0.5, 0.5)
+        pos = (cab.front_x + rng.uniform(0.05, 0.08), cab.y + rng.uniform(-0.05, 0.05), cab.top_z + ITEM_HALF)
+        item = scene.add_box((ITEM_HALF,) * 3, pos, scene.p.getQuaternionFromEuler((0, 0, yaw)),
+                             color="purple", mass=0.05)
+        self.add_object("item", "block", item, color="purple", size=(2 * ITEM_HALF,) * 3, role="target")
+
+    def goal(self) -> str:
+        """E.g. 'put the item in the top drawer'."""
+        return f"put the item in the {self.params['drawer']} drawer"
+
+    def _tray(self) -> np.ndarray:
+        """Centre of the named drawer's tray floor (world)."""
+        d = self.params["drawer"]
+        handle, _ = self.pose(f"{d}_drawer_handle")
+        opening = self.art_state(f"{d}_drawer")
+        # Near the drawer's front panel: the wrist, further out than the hand, must clear the
+        # handles of the closed drawers above.
+        x = self.cabinet.front_x - opening + 0.055
+        return np.array([x, handle[1], handle[2] - DRAWER_H / 2 + 0.01])
+
+    def expert(self) -> Iterator[Waypoint]:
+        """Open the drawer, then pick the item and drop it in the tray."""
+        d = self.params["drawer"]
+        yield from pull_drawer_waypoints(self, self.cabinet, d, distance=0.185)
+        pos, orn = self.pose("item")
+        # Turn the hand down while clear of the cabinet, before reaching over its top.
+        ee = self.scene.ee_pose()
+        ready = np.array([ee[0], ee[1], self.cabinet.top_z + 0.12])
+        yield Waypoint(ready, top_down_quat(-np.pi / 2), True, "move the gripper above the cabinet")
+        # Fingers along y, so the hand's long side clears the cabinet front when lowering.
+        yaw = yaw_of(orn) + np.pi / 2 * np.round((-np.pi / 2 - yaw_of(orn)) / (np.pi / 2))
+        yield from self.pick("item", pos, yaw, float(pos[2]), above=0.08, lift_z=float(pos[2]) + 0.1)
+        tray = self._tray()
+        # Let go a few centimetres up, so the hand stays above the drawer front panel.
+        release = tray + np.array([0, 0, ITEM_HALF + 0.04])
+        # Carry at the cabinet-top height, then lower straight into the tray.
+        above = self.cabinet.top_z + 0.12 - release[2]
+        yield from self.carry("item", "item", f"{d} drawer", release, above=above, preposition="in")
+
+    def success(self) -> bool:
+        """The item rests inside the named drawer's tray, released."""
+        if self.scene.held is not None:
+            return False
+        pos, _ = self.pose("item")
+        tray = self._tray()
+        inside = -0.04 < pos[0] - tray[0] < DEPTH - 0.06 and abs(pos[1] - tray[1]) < 0.1
+        return bool(inside and abs(pos[2] - (tray[2] + ITEM_HALF)) < 0.02)
