@@ -129,10 +129,9 @@ class ExactIndex(NearestIndex):
         lb = np.maximum(sb[start, chunk["arg_e"][eg]] + chunk["max_e"][eg], sb[start, b] + se[eg, b])
         lb = np.maximum(lb, best_so_far)
         need = (ub >= lb[:, None]).any(axis=0) & ~done
-        sizes = chunk["sizes"]
-        if sizes[need].sum() * 2 > sb.shape[1]:
+        if chunk["sizes"][need].sum() * 2 > sb.shape[1]:
             return None  # the bounds prune too little: the dense pass is cheaper
-        return np.flatnonzero(np.repeat(need, sizes))
+        return _block_columns(chunk, need)
 
     def search_intervals(
         self, frame_vectors: np.ndarray, starts, ends, chunk: int = 8192
@@ -188,7 +187,7 @@ class ExactIndex(NearestIndex):
                     top = np.zeros(ub.shape[1], dtype=bool)
                     m = min(self.probe_blocks, ub.shape[1])
                     top[np.argpartition(-ub.max(axis=0), m - 1)[:m]] = True
-                    cols = np.flatnonzero(np.repeat(top, chunk["sizes"]))
+                    cols = _block_columns(chunk, top)
                     sub = np.take(se_rows, cols, axis=1)
                     sub += sb[start, cols]
                     self._update(sub, c, best, best_id, rows, cols)
@@ -227,6 +226,17 @@ def build(**options) -> ExactIndex:
     """The exact backend with ``options`` (memory_mb, threads, prune, block_size, seed)."""
     return ExactIndex(**options)
 
+
+def _block_columns(chunk: dict, mask: np.ndarray) -> np.ndarray:
+    """Chunk columns of the blocks selected by ``mask`` (concatenated ranges, no pass over all columns)."""
+    idx = np.flatnonzero(mask)
+    starts, lens = chunk["blocks"][idx], chunk["sizes"][idx]
+    total = int(lens.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64)
+    # position i of the output lies in range r: column = starts[r] + (i - first output index of r)
+    shift = np.repeat(starts - (np.cumsum(lens) - lens), lens)
+    return np.arange(total, dtype=np.int64) + shift
 
 def _cluster_blocks(x: np.ndarray, block_size: int, seed: int, iters: int = 4,
                     sketch_dim: int = 128, sample: int = 8192) -> tuple[np.ndarray, np.ndarray]:
