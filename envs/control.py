@@ -53,7 +53,7 @@ class Controller:
         self,
         scene: Scene,
         ticks_per_frame: int = 12,
-        joint_speed: float = 0.6,
+        joint_speed: float = 0.8,
         min_duration: float = 0.45,
         ramp: float = 0.1,
         max_ik_error: float = 0.01,
