@@ -131,6 +131,7 @@ class OpenAIChatBackend:
         self.backoff = float(backoff)
         self.max_tokens = int(max_tokens)
         self.temperature = float(temperature)
+        self._warned_no_key = False
 
     def _headers(self) -> dict[str, str]:
         headers = {"Content-Type": "application/json"}
@@ -138,7 +139,8 @@ class OpenAIChatBackend:
             key = os.environ.get(self.api_key_env)
             if key:
                 headers["Authorization"] = f"Bearer {key}"
-            else:
+            elif not self._warned_no_key:
+                self._warned_no_key = True
                 log.warning("environment variable %s is not set; calling %s without an API key",
                             self.api_key_env, self.url)
         return headers
