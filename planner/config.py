@@ -1,0 +1,140 @@
+"""Typed planner configuration: model kind and sizes, training and LoRA settings (one YAML each)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+MODEL_KINDS = ("tiny_llava", "tiny_llava_next", "llava_next_8b")
+SCHEDULES = ("cosine", "linear", "constant", "constant_with_warmup")
+
+
+def _coerce(cls, value: Any, where: str):
+    """Build dataclass ``cls`` from a mapping (a Hydra DictConfig included); unknown keys are errors."""
+    if isinstance(value, cls):
+        return value
+    if not isinstance(value, Mapping) and not hasattr(value, "keys"):
+        raise ValueError(f"planner config {where!r} must be a mapping, got {type(value).__name__}")
+    known = {f.name for f in fields(cls)}
+    data = {str(k): value[k] for k in value.keys()}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"planner config {where!r}: unknown option(s) {unknown}; known: {sorted(known)}")
+    for k, v in list(data.items()):
+        if hasattr(v, "keys") or (hasattr(v, "__iter__") and not isinstance(v, str)):
+            data[k] = _plain(v)
+    return cls(**data)
+
+
+def _plain(v: Any) -> Any:
+    if hasattr(v, "keys"):
+        return {str(k): _plain(v[k]) for k in v.keys()}
+    if hasattr(v, "__iter__") and not isinstance(v, str):
+        return [_plain(x) for x in v]
+    return v
+
+
+@dataclass
+class TrainSettings:
+    """Optimiser and schedule of one training stage (base pretraining or LoRA finetuning)."""
+
+    lr: float = 1e-3
+    epochs: int = 10
+    batch_size: int = 16
+    grad_accum: int = 1
+    schedule: str = "cosine"
+    warmup_ratio: float = 0.05
+    weight_decay: float = 0.0
+    max_grad_norm: float = 1.0
+    seed: int = 0
+    include_inner_frames: bool = False  # also train on frames inside segments
+
+    def __post_init__(self) -> None:
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"planner train schedule {self.schedule!r} unknown; choose from {SCHEDULES}")
+        if not (0.0 <= self.warmup_ratio < 1.0):
+            raise ValueError(f"planner warmup_ratio must be in [0, 1), got {self.warmup_ratio}")
+        if self.epochs < 1 or self.batch_size < 1 or self.grad_accum < 1:
+            raise ValueError("planner epochs, batch_size and grad_accum must be >= 1")
+
+
+@dataclass
+class LoraSettings:
+    """peft LoRA on the language model's attention projections plus the multimodal projector."""
+
+    r: int = 16
+    alpha: int = 32
+    dropout: float = 0.05
+    # a regex (peft full-matches it against module names) that only the language model satisfies,
+    # so the vision tower's identically named q/k/v projections stay frozen
+    target_modules: str = r".*language_model.*\.(q_proj|k_proj|v_proj|o_proj)"
+    projector: str = "train"  # "train": fully trained copy (modules_to_save); "lora"; "frozen"
+
+    def __post_init__(self) -> None:
+        if self.projector not in ("train", "lora", "frozen"):
+            raise ValueError(f"planner lora.projector {self.projector!r}: use train, lora or frozen")
+
+
+@dataclass
+class PlannerConfig:
+    """Everything that makes a planner: architecture or checkpoint, tokenizer, both training stages."""
+
+    kind: str = "tiny_llava"
+    image_size: int = 64
+    patch_size: int = 16
+    vision_hidden: int = 64
+    vision_layers: int = 2
+    vision_heads: int = 4
+    text_hidden: int = 128
+    text_layers: int = 2
+    text_heads: int = 4
+    text_intermediate: int = 256
+    vocab_size: int = 600  # BPE size trained on the instruction + goal corpus
+    image_grid_pinpoints: list[list[int]] = field(default_factory=lambda: [[64, 64], [64, 128],
+                                                                         [128, 64], [128, 128]])
+    checkpoint_path: str | None = None  # llava_next_8b: a local transformers-format directory
+    dtype: str = "float32"
+    max_new_tokens: int = 24
+    view: str = "front"
+    pretrain: TrainSettings = field(default_factory=TrainSettings)
+    finetune: TrainSettings = field(default_factory=lambda: TrainSettings(lr=2e-3, epochs=20,
+                                                                          batch_size=8))
+    lora: LoraSettings = field(default_factory=LoraSettings)
+
+    def __post_init__(self) -> None:
+        if self.kind not in MODEL_KINDS:
+            raise ValueError(f"planner kind {self.kind!r} unknown; choose from {MODEL_KINDS}")
+        if self.dtype not in ("float32", "bfloat16", "float16"):
+            raise ValueError(f"planner dtype {self.dtype!r}: use float32, bfloat16 or float16")
+        if self.image_size % self.patch_size:
+            raise ValueError(f"planner image_size {self.image_size} is not a multiple of "
+                             f"patch_size {self.patch_size}")
+        self.pretrain = _coerce(TrainSettings, self.pretrain, "pretrain")
+        self.finetune = _coerce(TrainSettings, self.finetune, "finetune")
+        self.lora = _coerce(LoraSettings, self.lora, "lora")
+        self.image_grid_pinpoints = [[int(a) for a in p] for p in _plain(self.image_grid_pinpoints)]
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> PlannerConfig:
+        """Build from a plain or Hydra mapping (``_target_`` ignored); unknown keys are errors."""
+        data = {k: data[k] for k in data.keys() if k != "_target_"}
+        return _coerce(cls, data, "planner")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict."""
+        return asdict(self)
+
+    def model_dict(self) -> dict[str, Any]:
+        """The part that determines the base model (what base pretraining is keyed by)."""
+        d = self.to_dict()
+        for k in ("finetune", "lora", "max_new_tokens"):
+            d.pop(k)
+        return d
+
+
+def digest(obj: Any) -> str:
+    """Stable short SHA-256 of a JSON-able object."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]

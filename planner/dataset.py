@@ -1,0 +1,135 @@
+"""Planner training examples from decomposed and labelled demonstrations, and their batching."""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from planner.prompts import render_prompt, render_target
+from rdd.data.episode import Episode
+from rdd.segments import Segment, validate_segments
+
+
+@dataclass(frozen=True)
+class PlannerExample:
+    """One planner query and its answer: image (uint8 HxWx3), goal, previous instruction, target."""
+
+    image: np.ndarray
+    goal: str
+    previous_instruction: str | None
+    target: str
+    task: str = ""
+    episode: str = ""
+    frame: int = -1
+
+
+def examples_from_episode(episode: Episode, segments: Sequence[Segment] | None = None,
+                          instructions: Sequence[str] | None = None, view: str = "front",
+                          include_inner_frames: bool = False) -> list[PlannerExample]:
+    """One example per segment start (plus inner frames if asked), previous instruction None first.
+
+    ``segments``/``instructions`` default to the episode's own (expert) annotation.
+    """
+    segments = list(episode.segments if segments is None else segments)
+    instructions = list(episode.instructions if instructions is None else instructions)
+    if not segments:
+        raise ValueError(f"episode {episode.name!r}: no segments to build planner examples from")
+    if len(segments) != len(instructions):
+        raise ValueError(f"episode {episode.name!r}: {len(segments)} segments but "
+                         f"{len(instructions)} instructions")
+    validate_segments(segments, episode.num_frames)
+    if not episode.goal.strip():
+        raise ValueError(f"episode {episode.name!r}: empty goal; the planner prompt needs it")
+    picks: list[tuple[int, int]] = []  # (frame, segment index)
+    for i, (start, end) in enumerate(segments):
+        frames = range(start, end) if include_inner_frames else [start]
+        picks.extend((f, i) for f in frames)
+    images = episode.frames(view, [f for f, _ in picks])
+    out = []
+    for img, (f, i) in zip(images, picks, strict=True):
+        out.append(PlannerExample(image=np.ascontiguousarray(img), goal=episode.goal,
+                                  previous_instruction=instructions[i - 1] if i > 0 else None,
+                                  target=instructions[i], task=episode.task,
+                                  episode=episode.name, frame=int(f)))
+    return out
+
+
+def examples_fingerprint(examples: Sequence[PlannerExample]) -> str:
+    """Content hash of images and texts (cache key for trained models)."""
+    h = hashlib.sha256()
+    for ex in examples:
+        h.update(str(ex.image.shape).encode())
+        h.update(np.ascontiguousarray(ex.image).tobytes())
+        for s in (ex.goal, ex.previous_instruction or "\x00", ex.target):
+            h.update(s.encode() + b"\x01")
+    return h.hexdigest()
+
+
+def encode_prompt(processor, image: np.ndarray, goal: str, previous_instruction: str | None) -> dict:
+    """Processor outputs for one prompt (image tokens expanded), batch dimension removed."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[-1] != 3 or image.dtype != np.uint8:
+        raise ValueError(f"planner image must be uint8 (H, W, 3), got {image.dtype} {image.shape}")
+    text = render_prompt(processor.tokenizer, goal, previous_instruction)
+    enc = processor(images=[image], text=[text], return_tensors="pt", add_special_tokens=False)
+    return {k: v[0] for k, v in enc.items()}
+
+
+def encode_example(processor, ex: PlannerExample) -> dict:
+    """Prompt plus answer token ids with labels -100 on the prompt (only the answer is learned)."""
+    enc = encode_prompt(processor, ex.image, ex.goal, ex.previous_instruction)
+    answer = render_target(processor.tokenizer, ex.goal, ex.previous_instruction, ex.target)
+    ans_ids = torch.tensor(processor.tokenizer(answer, add_special_tokens=False)["input_ids"],
+                           dtype=torch.long)
+    prompt_ids = enc["input_ids"]
+    enc["input_ids"] = torch.cat([prompt_ids, ans_ids])
+    enc["attention_mask"] = torch.ones_like(enc["input_ids"])
+    enc["labels"] = torch.cat([torch.full_like(prompt_ids, -100), ans_ids])
+    return enc
+
+
+class PlannerCollator:
+    """Pads token sequences (right for training, left for generation) and stacks images.
+
+    LLaVA-NeXT's per-image tile stacks are zero-padded to the longest; ``image_sizes`` tells the
+    model how many tiles are real, so it is always passed through.
+    """
+
+    def __init__(self, pad_token_id: int, padding_side: str = "right"):
+        if padding_side not in ("left", "right"):
+            raise ValueError(f"padding_side must be left or right, got {padding_side!r}")
+        self.pad_token_id = int(pad_token_id)
+        self.padding_side = padding_side
+
+    def _pad(self, seqs: list[torch.Tensor], value: int) -> torch.Tensor:
+        n = max(len(s) for s in seqs)
+        out = torch.full((len(seqs), n), value, dtype=seqs[0].dtype)
+        for i, s in enumerate(seqs):
+            if self.padding_side == "right":
+                out[i, : len(s)] = s
+            else:
+                out[i, n - len(s):] = s
+        return out
+
+    def __call__(self, items: list[dict]) -> dict:
+        """Batch encoded examples."""
+        batch = {"input_ids": self._pad([it["input_ids"] for it in items], self.pad_token_id),
+                 "attention_mask": self._pad([it["attention_mask"] for it in items], 0)}
+        if "labels" in items[0]:
+            batch["labels"] = self._pad([it["labels"] for it in items], -100)
+        pix = [it["pixel_values"] for it in items]
+        if pix[0].ndim == 4:  # LLaVA-NeXT: (tiles, 3, H, W)
+            n = max(p.shape[0] for p in pix)
+            stacked = torch.zeros((len(pix), n, *pix[0].shape[1:]), dtype=pix[0].dtype)
+            for i, p in enumerate(pix):
+                stacked[i, : p.shape[0]] = p
+            batch["pixel_values"] = stacked
+        else:
+            batch["pixel_values"] = torch.stack(pix)
+        if "image_sizes" in items[0]:
+            batch["image_sizes"] = torch.stack([torch.as_tensor(it["image_sizes"]) for it in items])
+        return batch

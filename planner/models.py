@@ -1,0 +1,170 @@
+"""Build or load the planner's LLaVA model and processor: tiny LLaVA / LLaVA-NeXT or llama3-llava-next-8b.
+
+Tiny models are built from a config with random weights and a BPE tokenizer trained locally on the
+instruction and goal corpus (nothing comes from a hub). Images are preprocessed by transformers' PIL
+image processors, never the torchvision fast path.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import torch
+
+from planner.config import PlannerConfig
+from planner.prompts import IMAGE_TOKEN
+
+SPECIAL_TOKENS = ["<pad>", "<s>", "</s>", "<unk>", IMAGE_TOKEN]
+# A Vicuna-like template (as LLaVA-1.5 uses): "USER: ... ASSISTANT: answer</s>".
+TINY_CHAT_TEMPLATE = (
+    "{{ bos_token }}{% for m in messages %}{% if m['role'] == 'user' %}USER: {{ m['content'] }} "
+    "{% else %}ASSISTANT: {{ m['content'] }}{{ eos_token }}{% endif %}{% endfor %}"
+    "{% if add_generation_prompt %}ASSISTANT:{% endif %}"
+)
+CHECKPOINT_HELP = (
+    "put llama3-llava-next-8b in transformers format there (e.g. the files of the hub repository "
+    "'llava-hf/llama3-llava-next-8b-hf': config.json, *.safetensors, tokenizer and processor files) "
+    "or set planner.checkpoint_path"
+)
+
+
+def _require(module: str) -> None:
+    try:
+        __import__(module)
+    except ImportError as exc:  # pragma: no cover - depends on the installation
+        raise ImportError(f"the planner needs {module}: pip install 'rdd-harness[planner]'") from exc
+
+
+def train_tokenizer(corpus: Iterable[str], vocab_size: int):
+    """A byte-level BPE tokenizer trained on ``corpus`` with LLaVA's special tokens and chat template."""
+    _require("tokenizers")
+    from tokenizers import Tokenizer, decoders, models, pre_tokenizers, trainers
+    from transformers import PreTrainedTokenizerFast
+
+    texts = [t for t in corpus if t]
+    if not texts:
+        raise ValueError("cannot train the planner tokenizer on an empty corpus")
+    tok = Tokenizer(models.BPE(unk_token="<unk>"))
+    tok.pre_tokenizer = pre_tokenizers.ByteLevel(add_prefix_space=False)
+    tok.decoder = decoders.ByteLevel()
+    trainer = trainers.BpeTrainer(vocab_size=vocab_size, special_tokens=SPECIAL_TOKENS,
+                                  initial_alphabet=pre_tokenizers.ByteLevel.alphabet(),
+                                  show_progress=False)
+    tok.train_from_iterator(texts, trainer)
+    fast = PreTrainedTokenizerFast(tokenizer_object=tok, bos_token="<s>", eos_token="</s>",
+                                   pad_token="<pad>", unk_token="<unk>",
+                                   extra_special_tokens={"image_token": IMAGE_TOKEN})
+    fast.chat_template = TINY_CHAT_TEMPLATE
+    return fast
+
+
+def _image_processor(cfg: PlannerConfig):
+    from transformers.models.clip.image_processing_pil_clip import CLIPImageProcessorPil
+    from transformers.models.llava_next.image_processing_pil_llava_next import (
+        LlavaNextImageProcessorPil,
+    )
+
+    s = cfg.image_size
+    kw = dict(size={"shortest_edge": s}, crop_size={"height": s, "width": s})
+    if cfg.kind == "tiny_llava":
+        return CLIPImageProcessorPil(**kw)
+    return LlavaNextImageProcessorPil(image_grid_pinpoints=cfg.image_grid_pinpoints, **kw)
+
+
+def build_processor(cfg: PlannerConfig, tokenizer):
+    """The LLaVA (or LLaVA-NeXT) processor for a tiny model; CLIP's CLS token counted."""
+    from transformers import LlavaNextProcessor, LlavaProcessor
+
+    cls = LlavaProcessor if cfg.kind == "tiny_llava" else LlavaNextProcessor
+    return cls(image_processor=_image_processor(cfg), tokenizer=tokenizer,
+               patch_size=cfg.patch_size, vision_feature_select_strategy="default",
+               num_additional_image_tokens=1, chat_template=TINY_CHAT_TEMPLATE)
+
+
+def build_tiny_model(cfg: PlannerConfig, tokenizer) -> torch.nn.Module:
+    """A randomly initialised tiny LLaVA / LLaVA-NeXT sized by ``cfg``."""
+    _require("transformers")
+    from transformers import (
+        CLIPVisionConfig,
+        LlamaConfig,
+        LlavaConfig,
+        LlavaForConditionalGeneration,
+        LlavaNextConfig,
+        LlavaNextForConditionalGeneration,
+    )
+
+    if cfg.kind not in ("tiny_llava", "tiny_llava_next"):
+        raise ValueError(f"build_tiny_model cannot build kind {cfg.kind!r}")
+    n_img = (cfg.image_size // cfg.patch_size) ** 2
+    text = LlamaConfig(
+        vocab_size=len(tokenizer), hidden_size=cfg.text_hidden,
+        intermediate_size=cfg.text_intermediate, num_hidden_layers=cfg.text_layers,
+        num_attention_heads=cfg.text_heads, num_key_value_heads=cfg.text_heads,
+        # room for LLaVA-NeXT's tiles (up to 4 + base, plus newline tokens) and the text
+        max_position_embeddings=max(512, 8 * n_img + 256),
+        pad_token_id=tokenizer.pad_token_id, bos_token_id=tokenizer.bos_token_id,
+        eos_token_id=tokenizer.eos_token_id, tie_word_embeddings=False)
+    vision = CLIPVisionConfig(
+        hidden_size=cfg.vision_hidden, intermediate_size=2 * cfg.vision_hidden,
+        num_hidden_layers=cfg.vision_layers, num_attention_heads=cfg.vision_heads,
+        image_size=cfg.image_size, patch_size=cfg.patch_size, projection_dim=cfg.vision_hidden)
+    common = dict(vision_config=vision, text_config=text,
+                  image_token_id=tokenizer.convert_tokens_to_ids(IMAGE_TOKEN),
+                  vision_feature_select_strategy="default", vision_feature_layer=-1)
+    if cfg.kind == "tiny_llava":
+        model = LlavaForConditionalGeneration(LlavaConfig(**common))
+    else:
+        model = LlavaNextForConditionalGeneration(
+            LlavaNextConfig(image_grid_pinpoints=cfg.image_grid_pinpoints, **common))
+    model.generation_config.pad_token_id = tokenizer.pad_token_id
+    model.generation_config.eos_token_id = tokenizer.eos_token_id
+    return model
+
+
+def _model_class(kind: str):
+    from transformers import LlavaForConditionalGeneration, LlavaNextForConditionalGeneration
+
+    return LlavaForConditionalGeneration if kind == "tiny_llava" else LlavaNextForConditionalGeneration
+
+
+def resolve_checkpoint(cfg: PlannerConfig) -> Path:
+    """The local llama3-llava-next-8b directory, or a clear error saying where it must be."""
+    if not cfg.checkpoint_path:
+        raise FileNotFoundError(f"planner kind {cfg.kind!r} needs checkpoint_path; {CHECKPOINT_HELP}")
+    path = Path(cfg.checkpoint_path).expanduser()
+    if not (path / "config.json").is_file():
+        raise FileNotFoundError(f"no llama3-llava-next-8b checkpoint at {path} (config.json missing); "
+                                f"{CHECKPOINT_HELP}")
+    return path
+
+
+def load_model(path: str | Path, cfg: PlannerConfig, device: str | torch.device | None = None):
+    """(model, processor) from a saved base directory or the real checkpoint; eval mode."""
+    _require("transformers")
+    from transformers import AutoProcessor
+
+    path = Path(path)
+    if not (path / "config.json").is_file():
+        raise FileNotFoundError(f"no planner model at {path} (config.json missing)")
+    dtype = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}[cfg.dtype]
+    if cfg.kind == "llava_next_8b" and not torch.cuda.is_available() and dtype != torch.float32:
+        raise RuntimeError("llava_next_8b is meant to run in bf16 on a GPU; no CUDA device here "
+                           "(set planner.dtype=float32 to try it on CPU anyway)")
+    model = _model_class(cfg.kind).from_pretrained(path, dtype=dtype)
+    # backend="pil": transformers' torchvision fast path is not usable here
+    processor = AutoProcessor.from_pretrained(path, backend="pil")
+    tok = processor.tokenizer
+    if tok.pad_token_id is None:
+        # some released checkpoints ship without a pad token; padding is masked out anyway
+        tok.pad_token = tok.eos_token
+    if device is not None:
+        model.to(device)
+    model.eval()
+    return model, processor
+
+
+def save_model(model, processor, path: str | Path) -> None:
+    """Write model weights (safetensors) and the processor (tokenizer included) into ``path``."""
+    model.save_pretrained(path, safe_serialization=True)
+    processor.save_pretrained(path)

@@ -1,0 +1,64 @@
+"""RACER-style planner prompts (Dai et al., 2024): the same wording for training and for evaluation.
+
+RACER's supervisor sees "<image>\\nThe task goal is: {goal}. In the previous step, the robot arm was
+given the following instruction: {previous instruction}. ... Based on the visual observation and the
+context, ... what's the next instruction for the robot?". The first step has no previous
+instruction; RACER marks it as "The robot is about to start the task." We keep that wording, drop
+the robot-state description (our demonstrations carry no failure annotations) and make the answer the
+next instruction itself.
+"""
+
+from __future__ import annotations
+
+IMAGE_TOKEN = "<image>"
+QUESTION = "Based on the visual observation and the context, what's the next instruction for the robot?"
+
+
+def _sentence(text: str) -> str:
+    text = " ".join(str(text).split())
+    return text if text.endswith((".", "!", "?")) else text + "."
+
+
+def user_prompt(goal: str, previous_instruction: str | None) -> str:
+    """The user turn: image placeholder, goal, previous instruction (or the start marker), question."""
+    if not str(goal).strip():
+        raise ValueError("planner prompt needs a non-empty task goal")
+    parts = [f"{IMAGE_TOKEN}\nThe task goal is: {_sentence(goal)}"]
+    if previous_instruction is None or not str(previous_instruction).strip():
+        parts.append("This is the first step and the robot is about to start the task.")
+    else:
+        parts.append("In the previous step, the robot arm was given the following instruction: "
+                     f"{_sentence(previous_instruction)}")
+    parts.append(QUESTION)
+    return " ".join(parts)
+
+
+def render_prompt(tokenizer, goal: str, previous_instruction: str | None) -> str:
+    """The chat-formatted prompt text, ending where the assistant's answer starts."""
+    messages = [{"role": "user", "content": user_prompt(goal, previous_instruction)}]
+    return tokenizer.apply_chat_template(messages, tokenize=False, add_generation_prompt=True)
+
+
+def render_target(tokenizer, goal: str, previous_instruction: str | None, target: str) -> str:
+    """The text the model must produce after the prompt (answer plus the template's end marker)."""
+    target = " ".join(str(target).split())
+    if not target:
+        raise ValueError("planner target instruction is empty")
+    prompt = render_prompt(tokenizer, goal, previous_instruction)
+    messages = [{"role": "user", "content": user_prompt(goal, previous_instruction)},
+                {"role": "assistant", "content": target}]
+    full = tokenizer.apply_chat_template(messages, tokenize=False)
+    if not full.startswith(prompt):
+        raise ValueError("the tokenizer's chat template renders the conversation with a different "
+                         "prefix than the generation prompt; cannot split prompt from answer")
+    return full[len(prompt):]
+
+
+def clean_output(text: str) -> str:
+    """First line of a generation, whitespace collapsed, trailing full stop removed."""
+    line = next((ln for ln in str(text).splitlines() if ln.strip()), "")
+    line = " ".join(line.split())
+    for prefix in ("The next instruction is:", "Next instruction:"):
+        if line.lower().startswith(prefix.lower()):
+            line = line[len(prefix):].strip()
+    return line.rstrip(".").strip()

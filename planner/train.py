@@ -1,0 +1,219 @@
+"""Base pretraining of the tiny planners and LoRA finetuning of any planner, both cached on disk.
+
+Base pretraining trains every weight of a freshly built tiny model on expert-decomposed
+demonstrations of the pretraining tasks (the caller guarantees they exclude the evaluation tasks);
+the result is the "w/o finetune" planner. LoRA finetuning (peft) adapts a base, tiny or
+llama3-llava-next-8b, to one decomposer's demonstrations. Each result lives in a directory named by a
+hash of everything that made it, written atomically; asking again returns it without work.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+import torch
+
+from planner.config import PlannerConfig, TrainSettings, digest
+from planner.dataset import (
+    PlannerCollator,
+    PlannerExample,
+    encode_example,
+    examples_fingerprint,
+    examples_from_episode,
+)
+from planner.models import (
+    build_processor,
+    build_tiny_model,
+    load_model,
+    resolve_checkpoint,
+    save_model,
+    train_tokenizer,
+)
+from planner.prompts import user_prompt
+
+CONFIG_FILE = "planner_config.json"
+LOG_FILE = "train_log.json"
+
+
+def _write_json(path: Path, obj) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=str))
+    os.replace(tmp, path)
+
+
+def _publish(tmp_dir: Path, final: Path) -> Path:
+    """Move a finished output directory into place (another process may have won the race)."""
+    final.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.replace(tmp_dir, final)
+    except OSError:
+        if not (final / CONFIG_FILE).is_file():
+            raise
+        shutil.rmtree(tmp_dir, ignore_errors=True)
+    return final
+
+
+def _train(model, processor, examples: Sequence[PlannerExample], settings: TrainSettings,
+           desc: str, progress: bool) -> dict:
+    """The one training loop of both stages: AdamW, warm-up + schedule, accelerate placement."""
+    from accelerate import Accelerator
+    from accelerate.utils import set_seed
+    from tqdm.auto import tqdm
+    from transformers import get_scheduler
+
+    if not examples:
+        raise ValueError(f"{desc}: no training examples")
+    set_seed(settings.seed)
+    accelerator = Accelerator(cpu=not torch.cuda.is_available(),
+                              gradient_accumulation_steps=settings.grad_accum)
+    encoded = [encode_example(processor, ex) for ex in examples]
+    collate = PlannerCollator(processor.tokenizer.pad_token_id, padding_side="right")
+    loader = torch.utils.data.DataLoader(
+        encoded, batch_size=settings.batch_size, shuffle=True, collate_fn=collate,
+        generator=torch.Generator().manual_seed(settings.seed))
+    params = [p for p in model.parameters() if p.requires_grad]
+    optimizer = torch.optim.AdamW(params, lr=settings.lr, weight_decay=settings.weight_decay)
+    total = math.ceil(len(loader) / settings.grad_accum) * settings.epochs
+    scheduler = get_scheduler(settings.schedule, optimizer,
+                              num_warmup_steps=int(round(settings.warmup_ratio * total)),
+                              num_training_steps=total)
+    model, optimizer, loader, scheduler = accelerator.prepare(model, optimizer, loader, scheduler)
+    model.train()
+    losses: list[float] = []
+    start = time.process_time()
+    wall = time.perf_counter()
+    bar = tqdm(total=total, desc=desc, disable=not progress, leave=False)
+    for _epoch in range(settings.epochs):
+        epoch_loss, n = 0.0, 0
+        for batch in loader:
+            with accelerator.accumulate(model):
+                loss = model(**batch).loss
+                accelerator.backward(loss)
+                if accelerator.sync_gradients:
+                    accelerator.clip_grad_norm_(params, settings.max_grad_norm)
+                optimizer.step()
+                scheduler.step()
+                optimizer.zero_grad()
+            if accelerator.sync_gradients:
+                bar.update(1)
+            epoch_loss += float(loss.detach())
+            n += 1
+            bar.set_postfix(loss=f"{loss.item():.3f}")
+        losses.append(epoch_loss / max(n, 1))
+    bar.close()
+    model.eval()
+    return {"epoch_losses": losses, "steps": total, "examples": len(examples),
+            "cpu_seconds": time.process_time() - start, "wall_seconds": time.perf_counter() - wall}
+
+
+def training_examples(episodes: Iterable, settings: TrainSettings, view: str = "front",
+                      segmentations: Sequence | None = None) -> list[PlannerExample]:
+    """Examples of a training stage from labelled episodes (own segments/instructions unless given).
+
+    ``segmentations``: optional (segments, instructions) per episode, e.g. one decomposer's output.
+    """
+    episodes = list(episodes)
+    if segmentations is not None and len(segmentations) != len(episodes):
+        raise ValueError(f"{len(segmentations)} segmentations for {len(episodes)} episodes")
+    out: list[PlannerExample] = []
+    for i, ep in enumerate(episodes):
+        segs, instr = segmentations[i] if segmentations is not None else (None, None)
+        out.extend(examples_from_episode(ep, segs, instr, view=view,
+                                         include_inner_frames=settings.include_inner_frames))
+    return out
+
+
+def tokenizer_corpus(examples: Iterable[PlannerExample]) -> list[str]:
+    """Texts the tiny tokenizer is trained on: prompts (goals, previous instructions) and targets."""
+    out = []
+    for ex in examples:
+        out.append(user_prompt(ex.goal, ex.previous_instruction))
+        out.append(ex.target)
+    return out
+
+
+def base_key(cfg: PlannerConfig, examples: Sequence[PlannerExample],
+             extra_corpus: Sequence[str] = ()) -> str:
+    """Cache key of a base: model config, pretraining settings, data, extra tokenizer corpus."""
+    return digest({"model": cfg.model_dict(), "data": examples_fingerprint(examples),
+                   "extra_corpus": list(extra_corpus)})
+
+
+def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], cache_dir: str | Path,
+                  *, extra_corpus: Sequence[str] = (), progress: bool = True) -> Path:
+    """The base planner directory: pretrained here (tiny kinds, cached) or the real checkpoint."""
+    if cfg.kind == "llava_next_8b":
+        return resolve_checkpoint(cfg)  # pretrained elsewhere; we only finetune it
+    final = Path(cache_dir) / "base" / f"{cfg.kind}-{base_key(cfg, examples, extra_corpus)}"
+    if (final / CONFIG_FILE).is_file():
+        return final
+    tokenizer = train_tokenizer(tokenizer_corpus(examples) + list(extra_corpus), cfg.vocab_size)
+    processor = build_processor(cfg, tokenizer)
+    torch.manual_seed(cfg.pretrain.seed)
+    model = build_tiny_model(cfg, tokenizer)
+    log = _train(model, processor, examples, cfg.pretrain, f"pretrain {cfg.kind}", progress)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=final.parent))
+    save_model(model, processor, tmp)
+    _write_json(tmp / LOG_FILE, log)
+    _write_json(tmp / CONFIG_FILE, {"stage": "base", "config": cfg.to_dict(),
+                                    "key": final.name})
+    return _publish(tmp, final)
+
+
+def _lora_config(cfg: PlannerConfig):
+    from peft import LoraConfig
+
+    target = cfg.lora.target_modules
+    modules_to_save = None
+    if cfg.lora.projector == "lora":
+        target = f"({target})|(.*multi_modal_projector\\.linear_[12])"
+    elif cfg.lora.projector == "train":
+        modules_to_save = ["multi_modal_projector"]
+    return LoraConfig(r=cfg.lora.r, lora_alpha=cfg.lora.alpha, lora_dropout=cfg.lora.dropout,
+                      target_modules=target, modules_to_save=modules_to_save, bias="none")
+
+
+def _base_identity(base_dir: Path) -> str:
+    meta = base_dir / CONFIG_FILE
+    if meta.is_file():
+        return json.loads(meta.read_text())["key"]
+    return str(base_dir.resolve())  # the real checkpoint: identified by where it lives
+
+
+def finetune_lora(cfg: PlannerConfig, base_dir: str | Path, examples: Sequence[PlannerExample],
+                  cache_dir: str | Path, *, seed: int | None = None, progress: bool = True) -> Path:
+    """LoRA-finetune the base in ``base_dir`` on ``examples``; returns the adapter directory."""
+    from peft import get_peft_model
+
+    base_dir = Path(base_dir)
+    settings = cfg.finetune
+    if seed is not None:
+        settings = TrainSettings(**{**settings.__dict__, "seed": int(seed)})
+    key = digest({"base": _base_identity(base_dir), "lora": cfg.lora.__dict__,
+                  "finetune": settings.__dict__, "data": examples_fingerprint(examples)})
+    final = Path(cache_dir) / "lora" / f"{cfg.kind}-{key}"
+    if (final / CONFIG_FILE).is_file():
+        return final
+    device = "cuda" if torch.cuda.is_available() else None
+    model, processor = load_model(base_dir, cfg, device=device)
+    torch.manual_seed(settings.seed)
+    model = get_peft_model(model, _lora_config(cfg))
+    if cfg.kind == "llava_next_8b":
+        model.gradient_checkpointing_enable()
+        model.enable_input_require_grads()
+    log = _train(model, processor, examples, settings, f"lora {cfg.kind}", progress)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=final.parent))
+    model.save_pretrained(tmp, safe_serialization=True)
+    _write_json(tmp / LOG_FILE, log)
+    _write_json(tmp / CONFIG_FILE, {"stage": "lora", "config": cfg.to_dict(), "key": final.name,
+                                    "base_dir": str(base_dir), "seed": settings.seed})
+    return _publish(tmp, final)
