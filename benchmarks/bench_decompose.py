@@ -45,8 +45,8 @@ class World:
         self.waypoints = rng.normal(size=(waypoints, latent))
         self.proj = [rng.normal(size=(latent, embed_dim)) / np.sqrt(latent) for _ in range(views)]
 
-    def trajectory(self, num_frames: int, seg_len: tuple[int, int] = (20, 80)) -> tuple[np.ndarray, list]:
-        """Frame vectors of a walk through random waypoints, and its true segments."""
+    def _walk(self, num_frames: int, seg_len: tuple[int, int]) -> tuple[np.ndarray, list]:
+        """Latent states of a walk through random waypoints, and its true segments."""
         rng = self.rng
         lat, segs, start = [], [], 0
         a = self.waypoints[rng.integers(len(self.waypoints))]
@@ -57,19 +57,30 @@ class World:
             segs.append((start, start + n))
             start, a = start + n, b
         x = np.concatenate(lat) + 0.05 * rng.normal(size=(num_frames, self.waypoints.shape[1]))
-        return np.concatenate([l2_normalize(np.tanh(x @ p)) for p in self.proj], 1), segs
+        return x, segs
+
+    def _embed(self, latents: np.ndarray) -> np.ndarray:
+        return np.concatenate([l2_normalize(np.tanh(latents @ p)) for p in self.proj], 1)
+
+    def trajectory(self, num_frames: int, seg_len: tuple[int, int] = (20, 80)) -> tuple[np.ndarray, list]:
+        """Frame vectors of a walk through random waypoints, and its true segments."""
+        x, segs = self._walk(num_frames, seg_len)
+        return self._embed(x), segs
 
     def database(self, entries: int) -> SubtaskDatabase:
         """``entries`` sub-tasks cut at the true boundaries of synthetic training trajectories."""
-        begin, end, dur = [], [], []
-        while len(begin) < entries:
-            fv, segs = self.trajectory(2000)
-            for s, e in segs[:-1]:  # the last one may be truncated
-                begin.append(fv[s])
-                end.append(fv[e - 1])
-                dur.append(e - 1 - s)
-        return SubtaskDatabase.from_arrays(np.stack(begin[:entries]), np.stack(end[:entries]),
-                                           np.asarray(dur[:entries]))
+        begin, end, dur, count = [], [], [], 0
+        while count < entries:
+            x, segs = self._walk(2000, (20, 80))
+            segs = segs[:-1]  # the last one may be truncated
+            s = np.array([a for a, _ in segs])
+            e = np.array([b for _, b in segs])
+            begin.append(self._embed(x[s]))
+            end.append(self._embed(x[e - 1]))
+            dur.append(e - 1 - s)
+            count += len(segs)
+        return SubtaskDatabase.from_arrays(np.concatenate(begin)[:entries], np.concatenate(end)[:entries],
+                                           np.concatenate(dur)[:entries])
 
 
 def naive_annoy_loop(fv: np.ndarray, db: SubtaskDatabase, annoy_index, alpha: float, min_len: int,
