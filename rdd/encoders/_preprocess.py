@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
-import torch.nn.functional as F
+
+if TYPE_CHECKING:  # torch is imported on first use, so listing encoders stays cheap
+    import torch
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -16,6 +18,8 @@ CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
 
 def to_float_tensor(images: np.ndarray) -> torch.Tensor:
     """uint8 (N, H, W, 3) -> float32 (N, 3, H, W) in [0, 1]."""
+    import torch
+
     images = np.ascontiguousarray(images)
     if not images.flags.writeable:
         # torch.from_numpy warns on read-only arrays (e.g. memory-mapped frames); copy those.
@@ -38,6 +42,8 @@ def resize_shorter(x: torch.Tensor, size: int, mode: str = "bilinear") -> torch.
 
 def resize_exact(x: torch.Tensor, hw: Sequence[int], mode: str = "bilinear") -> torch.Tensor:
     """Resize to exactly (H, W) with antialiasing (torchvision ``Resize((h, w))`` on tensors)."""
+    import torch.nn.functional as F
+
     if tuple(x.shape[-2:]) == tuple(hw):
         return x
     out = F.interpolate(x, size=tuple(int(v) for v in hw), mode=mode, align_corners=False, antialias=True)
@@ -57,6 +63,8 @@ def center_crop(x: torch.Tensor, size: int) -> torch.Tensor:
 
 def normalize(x: torch.Tensor, mean: Sequence[float], std: Sequence[float]) -> torch.Tensor:
     """Per-channel (x - mean) / std."""
+    import torch
+
     m = torch.tensor(mean, dtype=x.dtype).view(1, 3, 1, 1)
     s = torch.tensor(std, dtype=x.dtype).view(1, 3, 1, 1)
     return (x - m) / s

@@ -13,6 +13,8 @@ from rdd.encoders.base import Encoder
 class PixelsEncoder(Encoder):
     """Each image area-averaged to ``size`` x ``size``, scaled to [-1, 1] and flattened (3*size*size)."""
 
+    has_weights = False
+
     def __init__(self, size: int = 16, batch_size: int = 256, num_threads: int | None = None):
         if int(size) != size or int(size) < 1:
             raise ValueError(f"pixels: option size must be a positive integer, got {size!r}")
