@@ -179,7 +179,7 @@ def test_local_transformers_checkpoint(tmp_path):
     dec = VLMDecomposer(backend="transformers", checkpoint=str(ckpt), max_frames=4,
                         max_new_tokens=6)
     answer = dec.backend.ask("Frame", [np.zeros((40, 40, 3), np.uint8)] * 2, ["Frame 0 :", "Frame 1 :"])
-    assert isinstance(answer, str) and answer.strip()
+    assert isinstance(answer, str)  # random weights: any text (even empty) is a valid answer
     # Random weights: whatever it says either parses into segments or is a clear error.
     try:
         out = dec.decompose(episode(12))
