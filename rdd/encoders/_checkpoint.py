@@ -39,7 +39,8 @@ def resolve_checkpoint(name: str, checkpoint: str | os.PathLike | None, filename
     raise MissingCheckpointError(
         f"encoder {name!r} needs its official weights file {filename!r}, which is not on this machine "
         f"and is never downloaded at run time. Get it from {source} and either put it at {where} "
-        f"or pass its path as the option checkpoint=PATH (e.g. encoder.checkpoint=/path/{filename})."
+        f"or pass its path as the option checkpoint=PATH (CLI: --encoder-option checkpoint=/path/{filename}; "
+        f"Hydra: encoder.checkpoint=/path/{filename})."
     )
 
 
