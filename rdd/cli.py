@@ -47,6 +47,17 @@ def parse_options(items: Sequence[str] | None, flag: str) -> dict[str, Any]:
     return out
 
 
+def dumps_compact(data: Any) -> str:
+    """JSON with the top level indented and each list item of ``episodes`` on one line."""
+    if isinstance(data, dict) and isinstance(data.get("episodes"), list):
+        head = {k: v for k, v in data.items() if k != "episodes"}
+        lines = ",\n  ".join(json.dumps(r) for r in data["episodes"])
+        inner = json.dumps(head, indent=1)[:-1].rstrip()
+        sep = ",\n" if head else "\n"
+        return f'{inner}{sep} "episodes": [\n  {lines}\n ]\n}}\n'
+    return json.dumps(data, indent=1) + "\n"
+
+
 def write_json_atomic(path: str | Path, data: Any) -> Path:
     """Write ``data`` as JSON to ``path`` through a temporary file and a rename."""
     path = Path(path)
@@ -54,7 +65,7 @@ def write_json_atomic(path: str | Path, data: Any) -> Path:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, indent=1)
+            fh.write(dumps_compact(data))
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
