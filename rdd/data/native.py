@@ -135,14 +135,24 @@ def write_npz(path: str | Path, arrays: Mapping[str, np.ndarray]) -> None:
                 np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
 
 
+def _numpy_to_json(value: Any) -> Any:
+    """JSON stand-ins for numpy scalars and arrays (anything else stays an error)."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, tuple | set | frozenset):
+        return list(value)
+    raise TypeError(f"object of type {type(value).__name__} is not JSON serializable")
+
+
 def _jsonable_meta(meta: Mapping[str, Any], name: str) -> dict[str, Any]:
-    """``meta`` without the loader-owned ``privileged`` entry, checked to be JSON-serialisable."""
+    """``meta`` without the loader-owned ``privileged`` entry, as plain JSON values."""
     out = {k: v for k, v in meta.items() if k != "privileged"}
     try:
-        json.dumps(out)
-    except TypeError as exc:
+        return json.loads(json.dumps(out, default=_numpy_to_json))
+    except (TypeError, ValueError) as exc:
         raise ValueError(f"episode {name!r}: meta is not JSON-serialisable ({exc})") from exc
-    return out
 
 
 def save_episode(

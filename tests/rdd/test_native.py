@@ -26,7 +26,7 @@ def make_episode(name="ep", t=7, seed=0):
         task="open_drawer",
         segments=[(0, 3), (3, t)],
         instructions=["reach the handle", "pull"],
-        meta={"seed": 3, "variation": [1, 2]},
+        meta={"seed": np.int64(3), "variation": np.array([1, 2]), "scale": np.float32(0.5)},
     )
 
 
@@ -45,7 +45,7 @@ def test_round_trip(tmp_path):
     np.testing.assert_array_equal(back.ee_poses, ep.ee_poses)
     assert back.joint_positions is None
     assert back.segments == [(0, 3), (3, 7)] and back.instructions == ep.instructions
-    assert back.meta["seed"] == 3 and back.meta["variation"] == [1, 2]
+    assert back.meta["seed"] == 3 and back.meta["variation"] == [1, 2] and back.meta["scale"] == 0.5
     np.testing.assert_array_equal(back.meta["privileged"]["object_poses"], priv["object_poses"])
     # The fingerprint follows the file bytes: equal content, equal files, equal fingerprint.
     again = load_episode(save_episode(back, tmp_path / "copy"))
