@@ -316,15 +316,19 @@ def load_episode(directory: str | Path) -> Episode:
 
 
 def load_episodes(folder: str | Path) -> list[Episode]:
-    """All native episodes in ``folder`` (sorted by directory name), or ``folder`` itself if it is one."""
+    """All native episodes under ``folder`` at any depth (e.g. ``<split>/<task>/<episode>/``),
+    sorted by relative path, or ``folder`` itself if it is one. Hidden (temporary) folders are skipped."""
     folder = Path(folder)
     if not folder.exists():
         raise FileNotFoundError(f"native episode path {folder} does not exist")
     if is_native_episode(folder):
         return [load_episode(folder)]
-    dirs = sorted(
-        (p for p in folder.iterdir() if p.is_dir() and is_native_episode(p)), key=natural_key
-    )
+    dirs = [
+        p.parent
+        for p in folder.rglob(EPISODE_FILE)
+        if not any(part.startswith(".") for part in p.parent.relative_to(folder).parts)
+    ]
     if not dirs:
-        raise FileNotFoundError(f"{folder} holds no native episodes (no */{EPISODE_FILE})")
+        raise FileNotFoundError(f"{folder} holds no native episodes (no **/{EPISODE_FILE})")
+    dirs.sort(key=lambda d: [natural_key(Path(part)) for part in d.relative_to(folder).parts])
     return [load_episode(d) for d in dirs]

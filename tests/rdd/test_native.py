@@ -63,6 +63,12 @@ def test_overwrite_and_folder_listing(tmp_path):
     assert eps[1].num_frames == 4
     assert [e.name for e in load_episodes(tmp_path / "episode10")] == ["e10"]
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp dirs left
+    # Nested layout <split>/<task>/<episode>/, and half-written hidden temp dirs are ignored.
+    save_episode(make_episode(name="b1"), tmp_path / "nest/train/task_b/b_seed1")
+    save_episode(make_episode(name="a2"), tmp_path / "nest/train/task_a/a_seed10")
+    save_episode(make_episode(name="a1"), tmp_path / "nest/train/task_a/a_seed9")
+    save_episode(make_episode(name="tmp"), tmp_path / "nest/train/task_a/.a_seed11.tmp-x")
+    assert [e.name for e in load_episodes(tmp_path / "nest")] == ["a1", "a2", "b1"]
 
 
 def test_errors_name_the_fault(tmp_path):
