@@ -3,7 +3,8 @@
 Official checkpoint: ``model.pt`` (penn-pal-lab/LIV, ``load_liv("resnet50")``; Hugging Face
 ``jasonyma/LIV``), a dict ``{"liv": {"module.model.visual.*", "module.model.<text tower>"}}``; the
 image features are ``model.encode_image`` = the visual tower. Inputs: ``Resize(224)`` and CLIP's
-normalisation (LIV's ``transforms_tensor`` and RDD/UVD's LIV preprocessor).
+normalisation (LIV's ``transforms_tensor`` and RDD/UVD's LIV preprocessor). Snapshots written by
+LIV's own trainer (``model.visual.*``, no ``module.`` prefix) load too.
 """
 
 from __future__ import annotations
@@ -28,7 +29,10 @@ def _extract(obj: Any, path: Path) -> dict:
     from rdd.encoders._checkpoint import take_entry, take_prefix
 
     sd = take_entry(obj, "liv", "liv", path)
-    return take_prefix(sd, "module.model.visual.", "liv", path, ignore=("module.model.",))
+    # The released file was saved from the DataParallel wrapper ("module." prefix, which load_liv
+    # expects); LIV's trainer saves the unwrapped module, so its own snapshots lack the prefix.
+    prefix = "module.model." if any(k.startswith("module.") for k in sd) else "model."
+    return take_prefix(sd, prefix + "visual.", "liv", path, ignore=(prefix,))
 
 
 SPEC = OfficialSpec(

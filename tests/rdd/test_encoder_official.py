@@ -152,6 +152,19 @@ def test_official_checkpoint_file_loads(name, image, tmp_path, monkeypatch):
     np.testing.assert_allclose(loaded.encode(image), src.encode(image), rtol=1e-5, atol=1e-5)
 
 
+def test_liv_trainer_snapshot_without_dataparallel_prefix_loads(tmp_path):
+    """LIV's trainer saves ``self.model.module.state_dict()`` (no ``module.``) plus optimizer state."""
+    from rdd.encoders._checkpoint import load_state, load_strict
+    from rdd.encoders.liv import SPEC
+
+    src = _random("liv")
+    inner = {"model.visual." + k: v for k, v in src.model.state_dict().items()}
+    inner["model.logit_scale"] = torch.zeros([])
+    path = tmp_path / "snapshot.pt"
+    torch.save({"liv": inner, "optimizer": {"state": {}, "param_groups": [{"lr": 1e-5}]}, "global_step": 3}, path)
+    load_strict(src.model, SPEC.extract(load_state(path, "liv"), path), "liv", path)
+
+
 @pytest.mark.slow
 def test_clip_torchscript_archive_loads(image, tmp_path):
     """OpenAI ships RN50.pt as a TorchScript archive; its state dict holds ``visual.*``."""
