@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import os
 import zipfile
 from pathlib import Path
@@ -64,7 +65,10 @@ def load_state(path: Path, name: str) -> dict[str, Any]:
             return load_file(str(path), device="cpu")
         if _is_torchscript(path):
             return torch.jit.load(str(path), map_location="cpu").state_dict()
-        return torch.load(str(path), map_location="cpu", weights_only=True)
+        # MAE-style training checkpoints (VC-1's lineage) store their argparse ``args`` beside the
+        # weights; a Namespace only holds attributes, so it is the one extra class let through.
+        with torch.serialization.safe_globals([argparse.Namespace]):
+            return torch.load(str(path), map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - re-raised with the file and encoder named
         raise ValueError(f"encoder {name!r}: cannot read checkpoint {str(path)!r}: {exc}") from exc
 

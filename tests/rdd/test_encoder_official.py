@@ -215,3 +215,24 @@ def test_missing_checkpoint_message(name, tmp_path, monkeypatch):
 def test_random_weights_and_checkpoint_are_exclusive(tmp_path):
     with pytest.raises(ValueError, match="random_weights"):
         load_encoder("r3m", random_weights=True, checkpoint=str(tmp_path / "x.pt"))
+
+
+def test_checkpoint_loading_is_weights_only(tmp_path):
+    """MAE-style files carrying argparse args load; a pickle that would call a function is refused."""
+    import argparse
+    import os
+
+    from rdd.encoders._checkpoint import load_state
+
+    ok = tmp_path / "vc1_vitb.pth"
+    torch.save({"model": {"cls_token": torch.zeros(1, 1, 4)}, "args": argparse.Namespace(lr=1.0), "epoch": 3}, ok)
+    assert load_state(ok, "vc1")["epoch"] == 3
+
+    class Payload:
+        def __reduce__(self):
+            return (os.getcwd, ())
+
+    bad = tmp_path / "bad.pth"
+    torch.save({"model": Payload()}, bad)
+    with pytest.raises(ValueError, match="bad.pth"):
+        load_state(bad, "vc1")
