@@ -29,7 +29,7 @@ class NetConfig:
     hidden: int = 96
     pos_sigma: float = 0.02  # metres; width of the mixture's position likelihood
     rot_kappa: float = 20.0  # concentration of the orientation likelihood
-    gripper_weight: float = 1.0
+    gripper_weight: float = 2.0
     match_scale: float = 20.0  # initial gain of the instruction-name cosine similarity
 
     def to_dict(self) -> dict:
@@ -88,25 +88,42 @@ class KeyframeNet(nn.Module):
         self.match = nn.Linear(cfg.text_dim, cfg.text_dim, bias=False)
         with torch.no_grad():
             self.match.weight.copy_(torch.eye(cfg.text_dim) * cfg.match_scale)
-        self.head = nn.Sequential(nn.Linear(h, h), nn.GELU(), nn.Linear(h, 3 + 4 + 1))
+        self.head = nn.Sequential(nn.Linear(h, h), nn.GELU(), nn.Linear(h, 3 + 4))
+        self.gripper = nn.Sequential(nn.Linear(2 * h + cfg.proprio_dim, h), nn.GELU(), nn.Linear(h, 1))
 
     def forward(
         self,
         instr: torch.Tensor,  # (B, D) instruction embedding
-        proprio: torch.Tensor,  # (B, P)
+        proprio: torch.Tensor,  # (B, 8)
         names: torch.Tensor,  # (B, K, D) anchor description embeddings
         pos: torch.Tensor,  # (B, K, 3) anchor positions (world)
         yaw: torch.Tensor,  # (B, K) anchor yaw
         state: torch.Tensor,  # (B, K, S)
         mask: torch.Tensor,  # (B, K) bool, True where the anchor exists
     ) -> dict[str, torch.Tensor]:
-        """Per-anchor log-weights (B, K), positions (B, K, 3), quaternions (B, K, 4), gripper logits (B, K)."""
-        k = names.shape[1]
+        """Per-anchor log-weights (B, K), positions (B, K, 3), quaternions (B, K, 4); gripper logit (B,)."""
+        return self.forward_indexed(instr, torch.arange(instr.shape[0]), names.reshape(-1, names.shape[-1]),
+                                    torch.arange(names.shape[0] * names.shape[1]).reshape(names.shape[:2]),
+                                    proprio, pos, yaw, state, mask)
+
+    def forward_indexed(
+        self,
+        instr_table: torch.Tensor,  # (I, D) distinct instruction embeddings
+        instr_idx: torch.Tensor,  # (B,) rows of instr_table
+        name_table: torch.Tensor,  # (M, D) distinct anchor description embeddings
+        name_idx: torch.Tensor,  # (B, K) rows of name_table (any value where mask is False)
+        proprio: torch.Tensor,
+        pos: torch.Tensor,
+        yaw: torch.Tensor,
+        state: torch.Tensor,
+        mask: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:
+        """:meth:`forward` with text embeddings given once per distinct text (the training path:
+        the 384-d projections run on the few distinct texts, not on every anchor of every sample)."""
+        k = name_idx.shape[1]
         ee = proprio[:, None, :3]
-        rel_world = ee - pos  # hand relative to anchor
-        rel_local = rotate_by_yaw(rel_world, -yaw)
-        ee_quat = proprio[:, None, 3:7].expand(-1, k, -1)
-        ee_local = quat_multiply(yaw_quaternion(-yaw), ee_quat)
+        rel_local = rotate_by_yaw(ee - pos, -yaw)  # hand relative to the anchor, in its yaw frame
+        ee_local = quat_multiply(yaw_quaternion(-yaw), proprio[:, None, 3:7].expand(-1, k, -1))
         geo_in = torch.cat(
             [
                 rel_local,
@@ -119,20 +136,28 @@ class KeyframeNet(nn.Module):
             ],
             dim=-1,
         )
-        t = self.text(instr)[:, None, :].expand(-1, k, -1)
-        n = self.name(names)
+        t_all = self.text(instr_table)
+        t1 = t_all[instr_idx]
+        t = t1[:, None, :].expand(-1, k, -1)
+        safe_idx = name_idx.clamp(min=0)
+        n = self.name(name_table)[safe_idx]
         g = self.geo(geo_in)
         feats = self.trunk(torch.cat([t * n, t, n, g], dim=-1))
-        match = (self.match(instr)[:, None, :] * names).sum(-1)
+        match = (self.match(instr_table)[instr_idx][:, None, :] * name_table[safe_idx]).sum(-1)
         logits = (self.score(feats).squeeze(-1) + match).masked_fill(~mask, float("-inf"))
+        log_w = torch.log_softmax(logits, dim=-1)
         out = self.head(feats)
         offset_local = out[..., :3]
         q_local = F.normalize(out[..., 3:7] + torch.tensor([0.0, 0.0, 0.0, 1e-3]), dim=-1)
+        # The gripper command depends on the instruction and on the hand, not on which anchor
+        # carries the position, so it is one head over the instruction and the attended anchors.
+        pooled = (log_w.exp().masked_fill(~mask, 0.0)[..., None] * feats).sum(1)
+        grip = self.gripper(torch.cat([t1, pooled, proprio], dim=-1)).squeeze(-1)
         return {
-            "log_weights": torch.log_softmax(logits, dim=-1),
+            "log_weights": log_w,
             "position": pos + rotate_by_yaw(offset_local, yaw),
             "quaternion": quat_multiply(yaw_quaternion(yaw), q_local),
-            "gripper_logit": out[..., 7],
+            "gripper_logit": grip,
         }
 
     def loss(self, pred: dict[str, torch.Tensor], target_pos: torch.Tensor,
@@ -147,12 +172,10 @@ class KeyframeNet(nn.Module):
         sigma = c.pos_sigma if pos_sigma is None else pos_sigma
         d2 = ((pred["position"] - target_pos[:, None, :]) ** 2).sum(-1)
         cos2 = (pred["quaternion"] * target_quat[:, None, :]).sum(-1) ** 2  # sign-invariant
-        grip = -F.binary_cross_entropy_with_logits(
-            pred["gripper_logit"], target_open[:, None].expand_as(pred["gripper_logit"]),
-            reduction="none",
-        )
-        comp = -d2 / (2 * sigma**2) + c.rot_kappa * (cos2 - 1.0) + c.gripper_weight * grip
-        return -(torch.logsumexp(pred["log_weights"] + comp, dim=-1)).mean()
+        comp = -d2 / (2 * sigma**2) + c.rot_kappa * (cos2 - 1.0)
+        nll = -(torch.logsumexp(pred["log_weights"] + comp, dim=-1)).mean()
+        grip = F.binary_cross_entropy_with_logits(pred["gripper_logit"], target_open)
+        return nll + c.gripper_weight * grip
 
     @staticmethod
     def select(pred: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -162,6 +185,6 @@ class KeyframeNet(nn.Module):
         return {
             "position": pred["position"][rows, idx],
             "quaternion": pred["quaternion"][rows, idx],
-            "gripper_open": torch.sigmoid(pred["gripper_logit"][rows, idx]),
+            "gripper_open": torch.sigmoid(pred["gripper_logit"]),
             "anchor": idx,
         }

@@ -67,6 +67,7 @@ class TrainConfig:
     """Optimisation settings."""
 
     epochs: int = 40
+    min_steps: int = 1500  # small datasets run more epochs so the optimiser takes at least this many steps
     batch_size: int = 256
     lr: float = 2e-3
     weight_decay: float = 1e-4
@@ -90,21 +91,22 @@ def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainCon
         opt = torch.optim.AdamW(net.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay)
         n = len(data)
         steps_per_epoch = max(1, (n + train_cfg.batch_size - 1) // train_cfg.batch_size)
+        epochs = max(train_cfg.epochs, -(-train_cfg.min_steps // steps_per_epoch))
         sched = torch.optim.lr_scheduler.OneCycleLR(
-            opt, max_lr=train_cfg.lr, total_steps=train_cfg.epochs * steps_per_epoch
+            opt, max_lr=train_cfg.lr, total_steps=epochs * steps_per_epoch
         )
         gen = torch.Generator().manual_seed(train_cfg.seed)
         start = time.perf_counter()
         history: list[float] = []
         stopped_early = False
-        for epoch in range(train_cfg.epochs):
-            frac = min(1.0, epoch / max(1.0, train_cfg.anneal_fraction * train_cfg.epochs))
+        for epoch in range(epochs):
+            frac = min(1.0, epoch / max(1.0, train_cfg.anneal_fraction * epochs))
             sigma = train_cfg.sigma_start * (net_cfg.pos_sigma / train_cfg.sigma_start) ** frac
             perm = torch.randperm(n, generator=gen)
             total = 0.0
             for b in range(steps_per_epoch):
                 idx = perm[b * train_cfg.batch_size:(b + 1) * train_cfg.batch_size]
-                pred = net(*_inputs(t, idx))
+                pred = net.forward_indexed(*_inputs(t, idx))
                 loss = net.loss(pred, t["target"][idx, :3], t["target"][idx, 3:7], t["target"][idx, 7],
                                 pos_sigma=sigma)
                 opt.zero_grad()
@@ -114,7 +116,7 @@ def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainCon
                 sched.step()
                 total += float(loss.detach()) * len(idx)
             history.append(total / n)
-            log.info("policy epoch %d/%d loss %.4f", epoch + 1, train_cfg.epochs, history[-1])
+            log.info("policy epoch %d/%d loss %.4f", epoch + 1, epochs, history[-1])
             if time.perf_counter() - start > train_cfg.max_seconds:
                 stopped_early = True
                 log.warning("policy training stopped after %d epochs (max_seconds)", epoch + 1)
@@ -136,7 +138,8 @@ def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainCon
 def _tensors(data: KeyframeDataset) -> dict[str, torch.Tensor]:
     name_idx = torch.as_tensor(data.name_idx, dtype=torch.long)
     return {
-        "instr": torch.as_tensor(data.instr_table, dtype=torch.float32)[torch.as_tensor(data.instr_idx)],
+        "instr_table": torch.as_tensor(data.instr_table, dtype=torch.float32),
+        "instr_idx": torch.as_tensor(data.instr_idx, dtype=torch.long),
         "proprio": torch.as_tensor(data.proprio, dtype=torch.float32),
         "name_table": torch.as_tensor(data.name_table, dtype=torch.float32),
         "name_idx": name_idx,
@@ -148,11 +151,10 @@ def _tensors(data: KeyframeDataset) -> dict[str, torch.Tensor]:
 
 
 def _inputs(t: dict[str, torch.Tensor], idx: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """Arguments of ``KeyframeNet.forward_indexed`` for the samples ``idx``."""
     name_idx = t["name_idx"][idx]
-    mask = name_idx >= 0
-    names = t["name_table"][name_idx.clamp(min=0)]
-    return (t["instr"][idx], t["proprio"][idx], names, t["pos"][idx], t["yaw"][idx],
-            t["state"][idx], mask)
+    return (t["instr_table"], t["instr_idx"][idx], t["name_table"], name_idx, t["proprio"][idx],
+            t["pos"][idx], t["yaw"][idx], t["state"][idx], name_idx >= 0)
 
 
 @torch.no_grad()
@@ -162,7 +164,7 @@ def evaluate_network(net: KeyframeNet, data: KeyframeDataset, batch: int = 4096)
     pos_err, rot_err, grip_ok = [], [], []
     for s in range(0, len(data), batch):
         idx = torch.arange(s, min(s + batch, len(data)))
-        sel = KeyframeNet.select(net(*_inputs(t, idx)))
+        sel = KeyframeNet.select(net.forward_indexed(*_inputs(t, idx)))
         tgt = t["target"][idx]
         pos_err.append((sel["position"] - tgt[:, :3]).norm(dim=-1))
         dot = (sel["quaternion"] * tgt[:, 3:7]).sum(-1).abs().clamp(max=1.0)
@@ -181,7 +183,7 @@ def cache_key(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainConfig)
     """Hash of everything that determines a trained network."""
     payload = json.dumps({"data": data.fingerprint(), "net": net_cfg.to_dict(),
                           "train": {k: v for k, v in asdict(train_cfg).items() if k != "threads"},
-                          "version": 1}, sort_keys=True)
+                          "version": 2}, sort_keys=True)
     return hashlib.sha256(payload.encode()).hexdigest()[:24]
 
 

@@ -1,0 +1,204 @@
+"""The default low-level policy: keyframe behaviour cloning on labelled expert sub-tasks.
+
+Training data: every expert segment of every training episode, labelled by the sub-task labeler;
+for each (sub-sampled) frame of a segment the target is that segment's keyframe (end-effector
+pose and gripper state at frame ``end - 1``). The trained network is cached on disk under a key
+made of the data's content hash and the configuration.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+
+from policy.features import STATE_DIM, Anchors, anchors_from_observation, observation_at
+from policy.interface import KeyframeAction, Policy
+from policy.network import KeyframeNet, NetConfig
+from policy.text import InstructionEmbedder, shared_embedder
+from policy.training import (
+    KeyframeDataset,
+    TrainConfig,
+    cache_key,
+    load_checkpoint,
+    save_checkpoint,
+    train_network,
+)
+from rdd.data.episode import Episode
+
+log = logging.getLogger(__name__)
+
+
+class Labeler(Protocol):
+    """Anything that turns an interval of an episode into an instruction."""
+
+    def label(self, episode: Episode, segment: tuple[int, int]) -> str:
+        """Instruction for frames ``[start, end)``."""
+        ...
+
+
+@dataclass
+class DatasetConfig:
+    """Which frames of each expert segment become training samples."""
+
+    frames_per_segment: int = 8  # evenly spaced, always including the segment's first frame
+    skip_failed: bool = True  # drop episodes whose expert did not succeed
+
+
+def _materialise(episode: Episode) -> Episode:
+    """Load the privileged arrays once (readers may hand out lazy npz views)."""
+    priv = episode.meta.get("privileged")
+    if priv is not None and not isinstance(priv, dict):
+        episode.meta["privileged"] = {k: np.asarray(priv[k]) for k in priv}
+    return episode
+
+
+def build_dataset(episodes: Iterable[Episode], labeler: Labeler, embedder: InstructionEmbedder,
+                  cfg: DatasetConfig | None = None) -> KeyframeDataset:
+    """Samples (observation, labelled instruction) -> keyframe from expert-segmented episodes."""
+    cfg = cfg or DatasetConfig()
+    rows: list[tuple[str, Anchors, np.ndarray]] = []
+    for ep in episodes:
+        if cfg.skip_failed and ep.meta.get("success") is False:
+            continue
+        if not ep.segments:
+            raise ValueError(f"episode {ep.name!r} has no expert segments to train the policy on")
+        ep = _materialise(ep)
+        for seg in ep.segments:
+            start, end = int(seg[0]), int(seg[1])
+            instr = labeler.label(ep, (start, end))
+            key = end - 1
+            target = np.concatenate([ep.ee_poses[key, :7], [1.0 if ep.gripper_open[key] >= 0.5 else 0.0]])
+            n = min(cfg.frames_per_segment, end - start)
+            for t in np.unique(np.linspace(start, end - 1, n).round().astype(int)):
+                rows.append((instr, anchors_from_observation(observation_at(ep, int(t))), target))
+    if not rows:
+        raise ValueError("no training samples: every episode was empty or failed")
+    instr_texts = sorted({r[0] for r in rows})
+    name_texts = sorted({n for r in rows for n in r[1].names})
+    i_of = {t: i for i, t in enumerate(instr_texts)}
+    n_of = {t: i for i, t in enumerate(name_texts)}
+    kmax = max(len(r[1].names) for r in rows)
+    n = len(rows)
+    name_idx = -np.ones((n, kmax), dtype=np.int64)
+    pos = np.zeros((n, kmax, 3), dtype=np.float32)
+    yaw = np.zeros((n, kmax), dtype=np.float32)
+    state = np.zeros((n, kmax, STATE_DIM), dtype=np.float32)
+    for r, (_, a, _) in enumerate(rows):
+        k = len(a.names)
+        name_idx[r, :k] = [n_of[x] for x in a.names]
+        pos[r, :k], yaw[r, :k], state[r, :k] = a.pos, a.yaw, a.state
+    return KeyframeDataset(
+        instr_idx=np.array([i_of[r[0]] for r in rows], dtype=np.int64),
+        instr_table=embedder.embed(instr_texts),
+        instr_texts=instr_texts,
+        proprio=np.stack([r[1].proprio for r in rows]).astype(np.float32),
+        name_idx=name_idx,
+        name_table=embedder.embed(name_texts),
+        name_texts=name_texts,
+        pos=pos, yaw=yaw, state=state,
+        target=np.stack([r[2] for r in rows]).astype(np.float32),
+    )
+
+
+@dataclass
+class PolicyTrainConfig:
+    """Everything that determines a trained keyframe policy (the cache key hashes all of it)."""
+
+    net: NetConfig = field(default_factory=NetConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    data: DatasetConfig = field(default_factory=DatasetConfig)
+
+
+def train_or_load(episodes: Sequence[Episode], labeler: Labeler, cache_dir: str | os.PathLike,
+                  cfg: PolicyTrainConfig | None = None,
+                  embedder: InstructionEmbedder | None = None) -> KeyframeBCPolicy:
+    """Train on ``episodes`` (or load the cached result for the same data and config)."""
+    cfg = cfg or PolicyTrainConfig()
+    cache_dir = Path(cache_dir)
+    embedder = embedder or shared_embedder(cache_dir / "text")
+    data = build_dataset(episodes, labeler, embedder, cfg.data)
+    key = cache_key(data, cfg.net, cfg.train) + "_" + _short_hash(asdict(cfg.data))
+    path = cache_dir / f"keyframe_policy_{key}.pt"
+    if path.is_file():
+        log.info("loading cached keyframe policy %s", path)
+        net, meta = load_checkpoint(path)
+    else:
+        net, stats = train_network(data, cfg.net, cfg.train)
+        meta = {"stats": stats, "config": _jsonable(asdict(cfg)), "instructions": data.instr_texts,
+                "anchor_names": data.name_texts, "key": key}
+        save_checkpoint(path, net, meta)
+        _write_json(path.with_suffix(".json"), meta)
+        log.info("trained keyframe policy in %.1f s -> %s", stats["train_seconds"], path)
+    return KeyframeBCPolicy(net, embedder, meta=meta, checkpoint=path)
+
+
+class KeyframeBCPolicy(Policy):
+    """Keyframe BC policy: object anchors scored against the instruction, keyframe relative to one."""
+
+    def __init__(self, net: KeyframeNet, embedder: InstructionEmbedder, meta: Mapping[str, Any] | None = None,
+                 checkpoint: Path | None = None) -> None:
+        self.net = net.eval()
+        self.embedder = embedder
+        self.meta = dict(meta or {})
+        self.checkpoint = checkpoint
+        self.goal = ""
+        self.last_anchor: str | None = None
+
+    @classmethod
+    def from_checkpoint(cls, path: str | os.PathLike, text_cache_dir: str | os.PathLike | None = None) -> KeyframeBCPolicy:
+        """Load a policy saved by :func:`train_or_load`."""
+        net, meta = load_checkpoint(Path(path))
+        return cls(net, shared_embedder(text_cache_dir), meta=meta, checkpoint=Path(path))
+
+    def reset(self, goal: str) -> None:
+        """Remember the episode's goal (the network itself acts on sub-task instructions)."""
+        self.goal = str(goal)
+        self.last_anchor = None
+
+    @torch.no_grad()
+    def act(self, observation: Mapping[str, Any], instruction: str) -> KeyframeAction:
+        """Next keyframe for ``instruction``; any text (even unfamiliar) yields a valid action."""
+        a = anchors_from_observation(observation)
+        emb = self.embedder.embed([str(instruction)] + a.names)
+        pred = self.net(
+            torch.as_tensor(emb[:1]),
+            torch.as_tensor(a.proprio[None], dtype=torch.float32),
+            torch.as_tensor(emb[None, 1:]),
+            torch.as_tensor(a.pos[None], dtype=torch.float32),
+            torch.as_tensor(a.yaw[None], dtype=torch.float32),
+            torch.as_tensor(a.state[None], dtype=torch.float32),
+            torch.ones(1, len(a.names), dtype=torch.bool),
+        )
+        sel = KeyframeNet.select(pred)
+        self.last_anchor = a.names[int(sel["anchor"][0])]
+        return KeyframeAction(
+            position=sel["position"][0].numpy(),
+            quaternion=sel["quaternion"][0].numpy(),
+            gripper_open=bool(sel["gripper_open"][0] >= 0.5),
+        )
+
+
+def _short_hash(obj: Any) -> str:
+    import hashlib
+
+    return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()[:8]
+
+
+def _jsonable(obj: Any) -> Any:
+    return json.loads(json.dumps(obj, default=str))
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        json.dump(obj, f, indent=1)
+    os.replace(tmp, path)
