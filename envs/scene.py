@@ -36,6 +36,9 @@ ARM_FORCES = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 PHYSICS_HZ = 240
 FINGER_OPEN = 0.04
 TABLE_TOP = 0.0
+# The fixed front camera looks down at the workspace from the far side of the table.
+FRONT_EYE = (1.1, 0.0, 0.85)
+FRONT_TARGET = (0.42, 0.0, 0.02)
 ROBOT_BASE = (-0.05, 0.0, TABLE_TOP)
 
 COLORS: dict[str, tuple[float, float, float, float]] = {
@@ -461,7 +464,7 @@ class Scene:
     def render(self) -> dict[str, np.ndarray]:
         """RGB images (H, W, 3) uint8 from the ``front`` and ``wrist`` cameras."""
         cam = self.camera
-        views = {"front": self.p.computeViewMatrix((1.08, 0.0, 0.52), (0.4, 0.0, 0.1), (0, 0, 1))}
+        views = {"front": self.p.computeViewMatrix(FRONT_EYE, FRONT_TARGET, (0, 0, 1))}
         hs = self.p.getLinkState(self.robot, HAND_LINK, computeForwardKinematics=True)
         rot = np.array(self.p.getMatrixFromQuaternion(hs[5])).reshape(3, 3)
         eye = np.array(hs[4]) + rot @ np.array([0.07, 0.0, 0.02])

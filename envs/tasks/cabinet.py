@@ -16,6 +16,11 @@ DEPTH = 0.2
 HALF_W = 0.12
 TRAVEL = 0.2
 HANDLE_STANDOFF = 0.035
+# Where the front centre of a cabinet goes (x range, |y| range) and how far it is turned
+# toward the workspace centre (so the front camera sees drawers slide out).
+CAB_X = (0.53, 0.58)
+CAB_Y = (0.13, 0.17)
+CAB_YAW = np.pi / 4
 
 
 @dataclass
@@ -25,6 +30,23 @@ class Cabinet:
     body: int
     front_x: float
     y: float
+    yaw: float = 0.0  # 0: drawers face -x (toward the robot); +-pi/2: they face the workspace centre
+
+    def to_world(self, local) -> np.ndarray:
+        """World point of a point in the cabinet frame (x into the cabinet, origin at the front)."""
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        x, y, z = local
+        return np.array([self.front_x + c * x - s * y, self.y + s * x + c * y, z])
+
+    @property
+    def pull_direction(self) -> np.ndarray:
+        """Unit vector a drawer moves along when opened (world)."""
+        return np.array([-np.cos(self.yaw), -np.sin(self.yaw), 0.0])
+
+    @property
+    def width_direction(self) -> np.ndarray:
+        """Unit vector across the drawers (world)."""
+        return np.array([-np.sin(self.yaw), np.cos(self.yaw), 0.0])
 
     def drawer_joint(self, name: str) -> int:
         """Prismatic joint index of drawer ``name``."""
@@ -45,8 +67,9 @@ class Cabinet:
         return BASE_Z + 3 * DRAWER_H + 0.015
 
 
-def build_cabinet(scene: Scene, task: Task, front_x: float, y: float) -> Cabinet:
-    """Create the cabinet, and register its handles (objects) and drawers (articulations)."""
+def build_cabinet(scene: Scene, task: Task, front_x: float, y: float, yaw: float = 0.0) -> Cabinet:
+    """Create the cabinet (front centre at (front_x, y), turned by ``yaw``), and register its
+    handles (objects) and drawers (articulations)."""
     top = BASE_Z + 3 * DRAWER_H
     shell = [
         ("box", (DEPTH / 2, 0.006, top / 2 + 0.0075), (DEPTH / 2, HALF_W + 0.006, top / 2 + 0.0075), "white"),
@@ -76,8 +99,9 @@ def build_cabinet(scene: Scene, task: Task, front_x: float, y: float) -> Cabinet
         ]
         links.append({"parts": handle, "parent": 2 * i + 1, "offset": (-HANDLE_STANDOFF, 0, 0),
                       "joint": "fixed", "mass": 0.05})
-    body = scene.add_articulated(shell, (front_x, y, 0.0), links)
-    cab = Cabinet(body, front_x, y)
+    quat = scene.p.getQuaternionFromEuler((0, 0, yaw))
+    body = scene.add_articulated(shell, (front_x, y, 0.0), links, quaternion=quat)
+    cab = Cabinet(body, front_x, y, yaw)
     for name in DRAWERS:
         j = cab.drawer_joint(name)
         # A weak velocity motor acts as sliding friction: a drawer stays where it is left.
@@ -94,12 +118,13 @@ def pull_drawer_waypoints(task: Task, cab: Cabinet, name: str, distance: float =
     from envs.tasks.base import Waypoint
 
     handle, _ = task.pose(f"{name}_drawer_handle")
-    quat = task.scene.best_side_quat(handle - np.array([distance / 2, 0, 0]))
-    pre = handle - np.array([0.1, 0, 0])
-    pulled = handle - np.array([distance, 0, 0])
+    n = cab.pull_direction
+    quat = task.scene.best_side_quat(handle + n * distance / 2, approach=-n)
+    pre = handle + 0.1 * n
+    pulled = handle + distance * n
     return [
         Waypoint(pre, quat, True, f"reach for the {name} drawer handle"),
         Waypoint(handle.copy(), quat, False, f"grasp the {name} drawer handle"),
         Waypoint(pulled, quat, True, f"pull the {name} drawer open"),
-        Waypoint(pulled - np.array([0.07, 0, 0]), quat, True, "move the gripper away from the handle"),
+        Waypoint(pulled + 0.07 * n, quat, True, "move the gripper away from the handle"),
     ]

@@ -8,7 +8,7 @@ import numpy as np
 
 from envs.scene import Scene
 from envs.tasks.base import Task, Waypoint
-from envs.tasks.cabinet import DRAWERS, build_cabinet, pull_drawer_waypoints
+from envs.tasks.cabinet import CAB_X, CAB_Y, CAB_YAW, DRAWERS, build_cabinet, pull_drawer_waypoints
 
 OPEN_ENOUGH = 0.12
 
@@ -24,9 +24,10 @@ class OpenDrawer(Task):
         return [{"drawer": d} for d in ("top", "middle", "bottom")]
 
     def build(self, scene: Scene, rng: np.random.Generator) -> None:
-        """A cabinet on the left or right of the workspace."""
+        """A cabinet on the left or right of the workspace, drawers facing the robot diagonally."""
         side = rng.choice([-1.0, 1.0])
-        self.cabinet = build_cabinet(scene, self, rng.uniform(0.56, 0.62), side * rng.uniform(0.09, 0.16))
+        self.cabinet = build_cabinet(scene, self, rng.uniform(CAB_X[0], CAB_X[1]),
+                                     side * rng.uniform(CAB_Y[0], CAB_Y[1]), side * CAB_YAW)
 
     def goal(self) -> str:
         """E.g. 'open the top drawer'."""

@@ -7,8 +7,16 @@ from collections.abc import Iterator
 import numpy as np
 
 from envs.scene import Scene, top_down_quat
-from envs.tasks.base import Task, Waypoint, yaw_of
-from envs.tasks.cabinet import DEPTH, DRAWER_H, build_cabinet, pull_drawer_waypoints
+from envs.tasks.base import HOME_FINGER_YAW, Task, Waypoint, yaw_of
+from envs.tasks.cabinet import (
+    CAB_X,
+    CAB_Y,
+    CAB_YAW,
+    DEPTH,
+    DRAWER_H,
+    build_cabinet,
+    pull_drawer_waypoints,
+)
 
 ITEM_HALF = 0.02
 
@@ -24,12 +32,13 @@ class PutItemInDrawer(Task):
         return [{"drawer": d} for d in ("top", "middle", "bottom")]
 
     def build(self, scene: Scene, rng: np.random.Generator) -> None:
-        """Cabinet to one side with a block on its top."""
+        """Cabinet to one side, drawers facing the robot diagonally, with a block on its top."""
         side = rng.choice([-1.0, 1.0])
-        cab = build_cabinet(scene, self, rng.uniform(0.57, 0.61), side * rng.uniform(0.09, 0.14))
+        cab = build_cabinet(scene, self, rng.uniform(CAB_X[0], CAB_X[1]), side * rng.uniform(CAB_Y[0], CAB_Y[1]),
+                            side * CAB_YAW)
         self.cabinet = cab
         yaw = rng.uniform(-0.5, 0.5)
-        pos = (cab.front_x + rng.uniform(0.05, 0.08), cab.y + rng.uniform(-0.05, 0.05), cab.top_z + ITEM_HALF)
+        pos = cab.to_world((rng.uniform(0.05, 0.08), rng.uniform(-0.05, 0.05), cab.top_z + ITEM_HALF))
         item = scene.add_box((ITEM_HALF,) * 3, pos, scene.p.getQuaternionFromEuler((0, 0, yaw)),
                              color="purple", mass=0.05)
         self.add_object("item", "block", item, color="purple", size=(2 * ITEM_HALF,) * 3, role="target")
@@ -45,20 +54,22 @@ class PutItemInDrawer(Task):
         opening = self.art_state(f"{d}_drawer")
         # Near the drawer's front panel: the wrist, further out than the hand, must clear the
         # handles of the closed drawers above.
-        x = self.cabinet.front_x - opening + 0.055
-        return np.array([x, handle[1], handle[2] - DRAWER_H / 2 + 0.01])
+        return self.cabinet.to_world((-opening + 0.055, 0.0, handle[2] - DRAWER_H / 2 + 0.01))
 
     def expert(self) -> Iterator[Waypoint]:
         """Open the drawer, then pick the item and drop it in the tray."""
         d = self.params["drawer"]
         yield from pull_drawer_waypoints(self, self.cabinet, d, distance=0.185)
         pos, orn = self.pose("item")
+        # Fingers across the drawer, so the hand's long side clears the cabinet front.
+        w = self.cabinet.width_direction
+        across = np.arctan2(w[1], w[0])
+        across += np.pi * np.round((HOME_FINGER_YAW - across) / np.pi)
+        yaw = yaw_of(orn) + np.pi / 2 * np.round((across - yaw_of(orn)) / (np.pi / 2))
         # Turn the hand down while clear of the cabinet, before reaching over its top.
         ee = self.scene.ee_pose()
         ready = np.array([ee[0], ee[1], self.cabinet.top_z + 0.12])
-        yield Waypoint(ready, top_down_quat(-np.pi / 2), True, "move the gripper above the cabinet")
-        # Fingers along y, so the hand's long side clears the cabinet front when lowering.
-        yaw = yaw_of(orn) + np.pi / 2 * np.round((-np.pi / 2 - yaw_of(orn)) / (np.pi / 2))
+        yield Waypoint(ready, top_down_quat(yaw), True, "move the gripper above the cabinet")
         yield from self.pick("item", pos, yaw, float(pos[2]), above=0.08, lift_z=float(pos[2]) + 0.1)
         tray = self._tray()
         # Let go a few centimetres up, so the hand stays above the drawer front panel.
@@ -73,5 +84,8 @@ class PutItemInDrawer(Task):
             return False
         pos, _ = self.pose("item")
         tray = self._tray()
-        inside = -0.04 < pos[0] - tray[0] < DEPTH - 0.06 and abs(pos[1] - tray[1]) < 0.1
-        return bool(inside and abs(pos[2] - (tray[2] + ITEM_HALF)) < 0.02)
+        d = pos - tray
+        depth = -float(d[:2] @ self.cabinet.pull_direction[:2])  # into the drawer
+        across = float(d[:2] @ self.cabinet.width_direction[:2])
+        inside = -0.04 < depth < DEPTH - 0.06 and abs(across) < 0.1
+        return bool(inside and abs(d[2] - ITEM_HALF) < 0.02)
