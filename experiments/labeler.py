@@ -17,13 +17,15 @@ a tap turned >= 30 % of its range            "turn the D"
 X was released above Y (Y supports X)        "place the X onto the Y" ("into" for containers;
                                              Y = "stack of <colour> <type>s" when Y is a
                                              like-coloured object of X's type)
+X was released into an open drawer D         "place the X in the D"
 X was released with nothing under it         "put the X down"
 X got grasped and rose >= 4 cm               "pick up the X"
 X got grasped                                "grasp the X"
 X held, ends over Y, not moving              "move the X above the Y"
 X held, rose >= 4 cm, mostly vertically      "lift the X"
+X held, over an open drawer D, not moving    "move the X above the D"
 X held, otherwise                            "move the X toward the Y" (Y nearest to X)
-an object X moved >= 3 cm without being held "push the X"
+X slid >= 3 cm sideways near the hand, unheld "push the X"
 hand rose >= 4 cm, mostly vertically         "move the gripper up"
 hand came >= 3 cm nearer Y and stopped there "reach for the Y" (Y nearest to the hand);
                                              "move above the Y" when the hand is closed
@@ -66,6 +68,8 @@ APPROACH = 0.03  # the hand got this much nearer an object: a reach
 REACH_RADIUS = 0.25  # a reach ends at most this far from its object
 MOVING = 0.008  # hand speed (m per frame) above which the interval ended mid-motion
 SUPPORT_MARGIN = 0.02  # horizontal slack when deciding that Y is under X
+PUSH_REACH = 0.08  # a pushed object came this close to the hand
+DRAWER_REACH = 0.3  # an object this near (horizontally) an open drawer's handle is over the drawer
 
 
 @dataclass(frozen=True)
@@ -182,8 +186,11 @@ def _describe(sc: _Scene, pos: np.ndarray, held: np.ndarray, arts: np.ndarray, h
         x = released[-1]
         y = _support(sc, pos[-1], x)
         if y is None:
+            drawer = _open_drawer_at(sc, pos[-1], arts[-1], x)
+            if drawer is not None:
+                return f"place the {sc.labels[x]} in the {drawer}"
             return f"put the {sc.labels[x]} down"
-        prep = "into" if sc.types[y] in CONTAINER_TYPES else "onto"
+        prep = "into" if sc.types[y].split(" ")[-1] in CONTAINER_TYPES else "onto"
         return f"place the {sc.labels[x]} {prep} the {_dest_label(sc, x, y)}"
     # 3. Holding X at the end.
     if held_end >= 0:
@@ -198,14 +205,20 @@ def _describe(sc: _Scene, pos: np.ndarray, held: np.ndarray, arts: np.ndarray, h
         horiz = np.linalg.norm(pos[-1, x, :2] - pos[0, x, :2])
         if rise >= RISE and horiz <= 0.5 * rise:
             return f"lift the {sc.labels[x]}"
+        drawer = _open_drawer_at(sc, pos[-1], arts[-1], x)
+        if y is None and drawer is not None and speed < MOVING:
+            return f"move the {sc.labels[x]} above the {drawer}"
         others = [j for j in range(k) if j != x]
         if others:
             y = min(others, key=lambda j: np.linalg.norm(pos[-1, j] - pos[-1, x]))
             return f"move the {sc.labels[x]} toward the {sc.labels[y]}"
         return f"move the {sc.labels[x]}"
-    # 4. Nothing held at the end: was anything pushed?
+    # 4. Nothing held at the end: did the hand push something sideways? (Objects that only drop,
+    # e.g. after a release into a sorter, were not pushed.)
     if k:
-        moved = np.linalg.norm(pos[-1] - pos[0], axis=1)
+        moved = np.linalg.norm(pos[-1, :, :2] - pos[0, :, :2], axis=1)
+        touch = np.min(np.linalg.norm(pos - hand[:, None, :], axis=2), axis=0)
+        moved = np.where(touch <= PUSH_REACH, moved, 0.0)
         j = int(np.argmax(moved))
         if moved[j] >= PUSHED:
             return f"push the {sc.labels[j]}"
@@ -256,6 +269,27 @@ def _below(sc: _Scene, pos: np.ndarray, x: int) -> int | None:
 def _support(sc: _Scene, pos: np.ndarray, x: int) -> int | None:
     """The object ``x`` rests on or is above at release (same footprint test as :func:`_below`)."""
     return _below(sc, pos, x)
+
+
+def _open_drawer_at(sc: _Scene, pos: np.ndarray, arts: np.ndarray, x: int) -> str | None:
+    """The open drawer object ``x`` is over or in (judged from the drawer's handle), or None.
+
+    Drawers are articulations, not objects; a drawer "d" is located by its handle object, whose
+    name starts with the drawer's name ("top_drawer" -> "top_drawer_handle").
+    """
+    best, best_d = None, np.inf
+    for m, kind in enumerate(sc.art_kinds):
+        span = sc.art_open[m] - sc.art_closed[m]
+        if kind != "drawer" or abs(span) < 1e-9 or (arts[m] - sc.art_closed[m]) / span < ART_FRACTION:
+            continue
+        name = sc.art_labels[m].replace(" ", "_")
+        for j, lab in enumerate(sc.labels):
+            if j == x or not lab.replace(" ", "_").startswith(name):
+                continue
+            d = float(np.linalg.norm(pos[x, :2] - pos[j, :2]))
+            if d <= DRAWER_REACH and pos[x, 2] >= pos[j, 2] - 0.08 and d < best_d:
+                best, best_d = sc.art_labels[m], d
+    return best
 
 
 def _dest_label(sc: _Scene, x: int, y: int) -> str:
