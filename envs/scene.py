@@ -143,13 +143,15 @@ class Scene:
 
     # ------------------------------------------------------------------ world
     def reset_world(self) -> None:
-        """Empty the world and rebuild floor, table and robot at the home pose."""
+        """Empty the world and rebuild the table and robot at the home pose.
+
+        (No floor: every large polygon costs TinyRenderer time, and the cameras look at the table.)
+        """
         p = self.p
         p.resetSimulation()
         p.setGravity(0, 0, -9.81)
         p.setTimeStep(1.0 / PHYSICS_HZ)
         p.setPhysicsEngineParameter(numSolverIterations=50, deterministicOverlappingPairs=1)
-        self.floor = self.add_box((1.5, 1.5, 0.01), (0.4, 0, -0.76), color=(0.35, 0.33, 0.3, 1), mass=0)
         self.table = self.add_box((0.55, 0.65, 0.02), (0.45, 0, TABLE_TOP - 0.02), color="wood", mass=0)
         for sx in (-1, 1):
             for sy in (-1, 1):
@@ -169,7 +171,7 @@ class Scene:
         self.gripper_open = True
         self.grasp_constraint: int | None = None
         self.held: tuple[int, int] | None = None  # (body, link) attached to the hand
-        self.fixtures: set[int] = {self.table, self.floor}
+        self.fixtures: set[int] = {self.table}
         self.step_hooks: list = []
         self._apply_arm_command(self.arm_target, np.zeros(7))
         self._apply_gripper_command()
