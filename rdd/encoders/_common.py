@@ -54,6 +54,8 @@ def torch_threads(num_threads: int | None) -> Iterator[None]:
 
 def state_dict_hash(module: torch.nn.Module) -> str:
     """SHA-256 over names, shapes, dtypes and bytes of every parameter and buffer, in key order."""
+    import torch
+
     h = hashlib.sha256()
     for key, tensor in sorted(module.state_dict().items()):
         t = tensor.detach().cpu().contiguous()
@@ -61,7 +63,7 @@ def state_dict_hash(module: torch.nn.Module) -> str:
         h.update(str(tuple(t.shape)).encode())
         h.update(str(t.dtype).encode())
         # Viewing as bytes covers every dtype (bfloat16 included) without a numpy round trip.
-        h.update(t.reshape(-1).view(__import__("torch").uint8).numpy().tobytes())
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes())
     return h.hexdigest()
 
 
