@@ -164,10 +164,16 @@ class Task(ABC):
         raise KeyError(f"task {self.name!r} has no articulation {name!r}")
 
     def graspable(self) -> list[tuple[int, int]]:
-        """(body, link) pairs the gripper may attach; by default every tracked non-fixture object
-        plus fixtures of type ``handle``."""
-        return [(o.body, o.link) for o in self.objects
-                if o.info.role != "fixture" or o.info.type == "handle"]
+        """(body, link) pairs the gripper may attach: every movable tracked object except
+        furniture (role ``fixture``), though handles are always graspable."""
+        out = []
+        for o in self.objects:
+            if o.info.role == "fixture" and o.info.type != "handle":
+                continue
+            if o.link < 0 and self.scene.p.getDynamicsInfo(o.body, -1)[0] <= 0:
+                continue  # static bodies (plate, lamp, pegs) cannot be picked up
+            out.append((o.body, o.link))
+        return out
 
     def state(self) -> dict[str, np.ndarray]:
         """Object-centric state: positions (K,3), quaternions (K,4), articulations (M,), held."""

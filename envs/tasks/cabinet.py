@@ -67,9 +67,11 @@ class Cabinet:
         return BASE_Z + 3 * DRAWER_H + 0.015
 
 
-def build_cabinet(scene: Scene, task: Task, front_x: float, y: float, yaw: float = 0.0) -> Cabinet:
+def build_cabinet(scene: Scene, task: Task, front_x: float, y: float, yaw: float = 0.0,
+                  target: str | None = None) -> Cabinet:
     """Create the cabinet (front centre at (front_x, y), turned by ``yaw``), and register its
-    handles (objects) and drawers (articulations)."""
+    handles (objects; the ``target`` drawer's handle has role "target") and drawers
+    (articulations)."""
     top = BASE_Z + 3 * DRAWER_H
     shell = [
         ("box", (DEPTH / 2, 0.006, top / 2 + 0.0075), (DEPTH / 2, HALF_W + 0.006, top / 2 + 0.0075), "white"),
@@ -107,7 +109,7 @@ def build_cabinet(scene: Scene, task: Task, front_x: float, y: float, yaw: float
         # A weak velocity motor acts as sliding friction: a drawer stays where it is left.
         scene.p.setJointMotorControl2(body, j, 1, targetVelocity=0, force=3.0)  # 1 = VELOCITY_CONTROL
         task.add_object(f"{name}_drawer_handle", "handle", body, cab.handle_link(name), color="black",
-                        size=(0.012, 0.012, 0.052), role="fixture")
+                        size=(0.012, 0.012, 0.052), role="target" if name == target else "fixture")
         task.add_articulation(f"{name}_drawer", "drawer", body, j, 0.0, TRAVEL)
     scene.fixtures.add(body)
     return cab

@@ -71,7 +71,9 @@ class InsertOntoSquarePeg(Task):
         _, bar, fy = best
         yield from self.pick("square ring", bar, fy, TABLE_TOP + RING_H / 2 + 0.006, lift_z=0.26)
         peg, _ = self.pose(f"{self.params['color']}_peg")
-        target = np.array([peg[0], peg[1], TABLE_TOP + 0.01 + RING_H / 2 + 0.005])
+        # Let go once the ring encircles the peg's top (the hand, wide along the finger axis,
+        # must stay above the peg); the ring then slides down the peg.
+        target = np.array([peg[0], peg[1], TABLE_TOP + PEG_H - 0.025])
         yield from self.carry("square_ring", "square ring", f"{self.params['color']} peg", target,
                               above=PEG_H + 0.04)
 

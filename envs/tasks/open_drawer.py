@@ -27,7 +27,7 @@ class OpenDrawer(Task):
         """A cabinet on the left or right of the workspace, drawers facing the robot diagonally."""
         side = rng.choice([-1.0, 1.0])
         self.cabinet = build_cabinet(scene, self, rng.uniform(CAB_X[0], CAB_X[1]),
-                                     side * rng.uniform(CAB_Y[0], CAB_Y[1]), side * CAB_YAW)
+                                     side * rng.uniform(CAB_Y[0], CAB_Y[1]), side * CAB_YAW, target=self.params["drawer"])
 
     def goal(self) -> str:
         """E.g. 'open the top drawer'."""

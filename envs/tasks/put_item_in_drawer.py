@@ -35,7 +35,7 @@ class PutItemInDrawer(Task):
         """Cabinet to one side, drawers facing the robot diagonally, with a block on its top."""
         side = rng.choice([-1.0, 1.0])
         cab = build_cabinet(scene, self, rng.uniform(CAB_X[0], CAB_X[1]), side * rng.uniform(CAB_Y[0], CAB_Y[1]),
-                            side * CAB_YAW)
+                            side * CAB_YAW, target=self.params["drawer"])
         self.cabinet = cab
         yaw = rng.uniform(-0.5, 0.5)
         pos = cab.to_world((rng.uniform(0.05, 0.08), rng.uniform(-0.05, 0.05), cab.top_z + ITEM_HALF))

@@ -44,7 +44,8 @@ class TurnTap(Task):
             # A weak velocity servo is the valve's friction: the handle stays where it is turned.
             scene.p.setJointMotorControl2(body, j, 0, targetVelocity=0, force=0.3)  # 0 = VELOCITY_CONTROL
             self.add_object(f"{side}_tap_handle", "handle", body, j, color="white",
-                            size=(0.09, 0.018, HANDLE_Z), role="fixture")
+                            size=(0.09, 0.018, HANDLE_Z),
+                            role="target" if side == self.params["side"] else "fixture")
             self.add_articulation(f"{side}_tap", "tap", body, j, 0.0, np.pi / 2)
         scene.fixtures.add(body)
 
