@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import pytest
 
-DEMO_SEEDS = (1, 2)
 _CACHE: dict = {}
 
 
