@@ -26,7 +26,7 @@ from rdd.scoring import check_intervals, cosine_to_angular
 
 
 class ExactIndex(NearestIndex):
-    """Brute-force exact search (no approximation), vectorised over candidate intervals."""
+    """Exact nearest-neighbour search (no approximation), vectorised over candidate intervals."""
 
     name = "exact"
 
@@ -56,7 +56,7 @@ class ExactIndex(NearestIndex):
         b, e = begin * inv, end * inv
         n = b.shape[0]
         if self.prune and n >= 4 * self.block_size:
-            self._perm, self._offsets = _cluster_blocks(np.concatenate([b, e], 1), self.block_size, self.seed)
+            self._perm, self._offsets = _cluster_blocks(b, e, self.block_size, self.seed)
         else:
             self._perm, self._offsets = np.arange(n), None
         # Stored in block order; self._perm maps a stored position back to the caller's entry id.
@@ -160,8 +160,8 @@ class ExactIndex(NearestIndex):
         groups = np.split(np.arange(order.size), cuts)
         t = fv.shape[0]
         longest = max(g.size for g in groups)
-        # Two (T, Nc) product matrices plus one (longest, Nc) work buffer per database chunk.
-        nc = self._chunk_entries(2 * t + longest)
+        # Two (T, Nc) product matrices plus one (longest, Nc) work buffer per thread and chunk.
+        nc = self._chunk_entries(2 * t + min(self.threads, len(groups)) * longest)
         best = np.full(order.size, -np.inf, dtype=np.float32)
         best_id = np.zeros(order.size, dtype=np.int64)
         workers = min(self.threads, len(groups))
@@ -238,7 +238,7 @@ def _block_columns(chunk: dict, mask: np.ndarray) -> np.ndarray:
     shift = np.repeat(starts - (np.cumsum(lens) - lens), lens)
     return np.arange(total, dtype=np.int64) + shift
 
-def _cluster_blocks(x: np.ndarray, block_size: int, seed: int, iters: int = 4,
+def _cluster_blocks(begin: np.ndarray, end: np.ndarray, block_size: int, seed: int, iters: int = 4,
                     sketch_dim: int = 128, sample: int = 8192) -> tuple[np.ndarray, np.ndarray]:
     """Order entries so that similar interval vectors sit together: (permutation, block starts).
 
@@ -246,9 +246,11 @@ def _cluster_blocks(x: np.ndarray, block_size: int, seed: int, iters: int = 4,
     of the vectors to ``sketch_dim`` dimensions; only the grouping depends on it, never a result.
     """
     rng = np.random.default_rng(seed)
-    n, d = x.shape
-    if d > sketch_dim:
-        x = x @ (rng.normal(size=(d, sketch_dim)).astype(np.float32) / np.sqrt(sketch_dim))
+    n, d = begin.shape
+    # Sketch of concat(begin, end) without materialising the (N, 2D) concatenation.
+    proj = rng.normal(size=(2 * d, sketch_dim)).astype(np.float32) / np.sqrt(sketch_dim)
+    x = np.concatenate([begin[a : a + 65536] @ proj[:d] + end[a : a + 65536] @ proj[d:]
+                        for a in range(0, n, 65536)])
     x = x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
     k = max(1, min(n // block_size, 1024))
     train = x[rng.choice(n, size=min(n, sample), replace=False)]
