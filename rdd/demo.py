@@ -95,37 +95,75 @@ def boundary_errors(found: list[Segment], truth: list[Segment]) -> list[int] | N
     return [int(x) - int(y) for x, y in zip(a, b, strict=True)]
 
 
+def assemble_from_database(demos: dict[str, list], picks: list[tuple[str, int, int]]
+                           ) -> tuple[np.ndarray, list[Segment], list[str]]:
+    """A demonstration made of copies of training sub-tasks ``(task, demo index, sub-task index)``."""
+    parts, truth, names, start = [], [], [], 0
+    for task, i, k in picks:
+        fv, segs = demos[task][i]
+        s, e = segs[k]
+        parts.append(fv[s:e])
+        truth.append((start, start + e - s))
+        names.append(f"{task}/train_{i} [{s}, {e})")
+        start += e - s
+    return np.concatenate(parts), truth, names
+
+
+def _report(title: str, truth: list[Segment], result) -> dict:
+    errors = boundary_errors(result.segments, truth)
+    print(title)
+    print(f"  true segments  : {truth}")
+    print(f"  RDD segments   : {result.segments}")
+    print(f"  boundary error : {errors if errors is not None else 'different number of segments'}")
+    for seg, n, j in zip(result.segments, result.neighbours, result.scores, strict=True):
+        print(f"  {str(seg):>10} -> '{n['instruction']}' ({n['episode']} [{n['start']}, {n['end']}),"
+              f" distance {n['distance']:.4f}, J {j:.3f})")
+    print(f"  novelty Delta  : {result.novelty:.4f}")
+    return errors
+
+
 def run_demo(seed: int = 0, demos_per_task: int = 5, backend: str = "exact", verbose: bool = True) -> dict:
-    """Build a synthetic database, decompose a new demonstration, print and return the comparison."""
+    """Build a synthetic database, decompose two new demonstrations, print and return the comparison.
+
+    The first is assembled from copies of database sub-tasks in a new order (RDD must recover it
+    exactly); the second is a fresh demonstration of a known task (new noise and sub-task lengths).
+    """
     from rdd.decomposers.rdd import RDDDecomposer
 
     rng = np.random.default_rng(seed)
     world = SyntheticWorld.make(seed=seed)
-    db, _ = build_synthetic_database(world, demos_per_task, rng)
-    task = sorted(world.waypoints)[int(rng.integers(len(world.waypoints)))]
-    fv, truth = world.demo(task, rng)
+    db, demos = build_synthetic_database(world, demos_per_task, rng)
     decomposer = RDDDecomposer(db, alpha=1.0, min_len=2, max_len=60, backend=backend)
-    result = decomposer.decompose_embeddings(fv)
-    errors = boundary_errors(result.segments, truth)
-    summary = {
-        "task": task,
-        "num_frames": int(fv.shape[0]),
-        "database_entries": len(db),
-        "truth": truth,
-        "segments": result.segments,
-        "keyframes": result.keyframes,
-        "boundary_errors": errors,
-        "matched": [(n["instruction"], n["episode"], round(n["distance"], 4)) for n in result.neighbours],
-        "novelty": result.novelty,
-    }
+    tasks = sorted(world.waypoints)
+    picks = []
+    for _ in range(4):
+        task = tasks[int(rng.integers(len(tasks)))]
+        i = int(rng.integers(demos_per_task))
+        picks.append((task, i, int(rng.integers(len(demos[task][i][1])))))
+    fv_a, truth_a, names = assemble_from_database(demos, picks)
+    res_a = decomposer.decompose_embeddings(fv_a)
+    task = tasks[int(rng.integers(len(tasks)))]
+    fv_f, truth_f = world.demo(task, rng)
+    res_f = decomposer.decompose_embeddings(fv_f)
     if verbose:
-        print(f"RDD demo: {len(db)} database sub-tasks from {demos_per_task} demos x "
-              f"{len(world.waypoints)} tasks; new {task} demonstration of {fv.shape[0]} frames")
-        print(f"  true segments  : {truth}")
-        print(f"  RDD segments   : {result.segments}")
-        print(f"  boundary error : {errors} frames")
-        for seg, n, j in zip(result.segments, result.neighbours, result.scores, strict=True):
-            print(f"  {str(seg):>10} -> '{n['instruction']}' ({n['episode']} [{n['start']}, {n['end']}),"
-                  f" distance {n['distance']:.4f}, J {j:.3f})")
-        print(f"  novelty Delta  : {result.novelty:.4f}")
-    return summary
+        print(f"RDD demo: {len(db)} database sub-tasks from {demos_per_task} demos x {len(tasks)} "
+              f"synthetic tasks, {db.frame_dim}-d frame vectors (2 views), backend {backend}")
+    err_a = _report(f"[1] {fv_a.shape[0]} frames assembled from database sub-tasks {names}",
+                    truth_a, res_a) if verbose else boundary_errors(res_a.segments, truth_a)
+    err_f = _report(f"[2] a fresh {task} demonstration of {fv_f.shape[0]} frames (new noise and lengths)",
+                    truth_f, res_f) if verbose else boundary_errors(res_f.segments, truth_f)
+
+    def summary(fv, truth, res, errors) -> dict:
+        return {
+            "num_frames": int(fv.shape[0]), "truth": truth, "segments": res.segments,
+            "keyframes": res.keyframes, "boundary_errors": errors, "exact": res.segments == truth,
+            "matched": [{k: n[k] for k in ("entry", "episode", "start", "end", "instruction", "distance")}
+                        for n in res.neighbours],
+            "scores": res.scores, "novelty": res.novelty,
+        }
+
+    return {
+        "database_entries": len(db), "backend": backend,
+        "assembled": summary(fv_a, truth_a, res_a, err_a),
+        "fresh": {"task": task, **summary(fv_f, truth_f, res_f, err_f)},
+    }

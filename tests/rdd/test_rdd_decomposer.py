@@ -187,8 +187,12 @@ def test_run_demo_reports_segments(capsys):
     summary = run_demo(seed=1)
     out = capsys.readouterr().out
     assert "RDD segments" in out and "novelty" in out
-    segs = summary["segments"]
-    assert segs[0][0] == 0 and segs[-1][1] == summary["num_frames"]
-    # the new demo is fresh noise and lengths, so cut points are near, not necessarily on, the truth
-    assert summary["boundary_errors"] is not None
-    assert max(abs(x) for x in summary["boundary_errors"]) <= 5
+    assembled, fresh = summary["assembled"], summary["fresh"]
+    # copies of database sub-tasks come back exactly, each matched to the entry it was copied from
+    assert assembled["segments"] == assembled["truth"] and assembled["exact"]
+    assert all(m["distance"] < 1e-3 for m in assembled["matched"])
+    # the fresh demo has new noise and lengths: cut points near, not necessarily on, the truth
+    segs = fresh["segments"]
+    assert segs[0][0] == 0 and segs[-1][1] == fresh["num_frames"]
+    assert fresh["boundary_errors"] is not None
+    assert max(abs(x) for x in fresh["boundary_errors"]) <= 5
