@@ -1,10 +1,10 @@
 """Builder shared by the paper's seven encoders: architecture + official checkpoint + preprocessing.
 
-Preprocessing follows how the official RDD code calls these encoders (through UVD's preprocessors):
-``Resize(224)`` (shorter side, bilinear, antialiased) then the model's normalisation; torchvision's
-ImageNet ResNet-50 uses its weights' own transform (``Resize(232)``, ``CenterCrop(224)``). RDD squares
-frames before that; here a centre crop to 224x224 does the same job for non-square frames, and is a
-no-op for square ones.
+Preprocessing follows how the official RDD code calls these encoders (``rdd/embed.py`` through UVD's
+preprocessors): a non-square frame is first resized (bicubic) to a square of its longer side, as
+RDD's ``uvd_embed`` does; then ``Resize(224)`` (bilinear, antialiased) and the model's normalisation.
+torchvision's ImageNet ResNet-50 uses its weights' own transform instead (``Resize(232)``,
+``CenterCrop(224)``). Square frames (RLBench's 128x128) skip the squaring step.
 """
 
 from __future__ import annotations
@@ -41,13 +41,24 @@ class OfficialSpec:
 
 def make_preprocess(spec: OfficialSpec) -> tuple[Callable[[np.ndarray], Any], str]:
     """The preprocessing function of ``spec`` and a string describing it (part of cache keys)."""
-    from rdd.encoders._preprocess import center_crop, normalize, resize_shorter, to_float_tensor
+    from rdd.encoders._preprocess import (
+        center_crop,
+        normalize,
+        resize_exact,
+        resize_shorter,
+        to_float_tensor,
+    )
 
     def preprocess(images: np.ndarray):
-        x = resize_shorter(to_float_tensor(images), spec.resize, spec.interpolation)
+        x = to_float_tensor(images)
+        h, w = x.shape[-2:]
+        if h != w:
+            side = max(h, w)
+            x = resize_exact(x, (side, side), "bicubic")
+        x = resize_shorter(x, spec.resize, spec.interpolation)
         return normalize(center_crop(x, spec.crop), spec.mean, spec.std)
 
-    pid = (f"resize{spec.resize}-{spec.interpolation}-aa/centercrop{spec.crop}/"
+    pid = (f"square-bicubic/resize{spec.resize}-{spec.interpolation}-aa/centercrop{spec.crop}/"
            f"mean{list(spec.mean)}/std{list(spec.std)}")
     return preprocess, pid
 
