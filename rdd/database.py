@@ -155,7 +155,7 @@ class SubtaskDatabase:
 
         ``segmentations``: one list of segments per episode, or None to use each ``episode.segments``.
         Instructions come from ``instructions`` when given, else from ``episode.instructions`` when
-        the segmentation is the episode's own, else are empty.
+        the segmentation is the episode's own (or the episode has none), else are empty.
         """
         if segmentations is not None and len(segmentations) != len(episodes):
             raise ValueError(
@@ -175,9 +175,10 @@ class SubtaskDatabase:
                 raise ValueError(f"episode {ep.name!r}: {exc}") from exc
             if instructions is not None:
                 instr = list(instructions[i])
-            elif ep.instructions is not None and ep.segments is not None and [
-                tuple(s) for s in ep.segments
-            ] == segs:
+            elif ep.instructions is not None and (
+                ep.segments is None or [tuple(int(v) for v in s) for s in ep.segments] == segs
+            ):
+                # the episode's instructions describe this segmentation (its own, or it has none)
                 instr = list(ep.instructions)
             else:
                 instr = [""] * len(segs)

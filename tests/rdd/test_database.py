@@ -67,6 +67,10 @@ def test_build_with_other_segmentation_has_no_labels_unless_given(episodes):
     assert db.labels == ["", ""]
     db = SubtaskDatabase.build(episodes, segs, enc, instructions=[["do all"], ["do it"]])
     assert db.labels == ["do all", "do it"]
+    # an episode without its own segmentation: its instructions describe the one passed in
+    for ep, text in zip(episodes, (["whole"], ["all of it"]), strict=True):
+        ep.segments, ep.instructions = None, text
+    assert SubtaskDatabase.build(episodes, segs, enc).labels == ["whole", "all of it"]
 
 
 def test_build_errors(episodes):
