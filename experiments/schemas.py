@@ -31,6 +31,8 @@ class DataConfig:
     train_episodes_per_task: int = 4  # expert-segmented: policy training set and sub-task database
     val_episodes_per_task: int = 3  # M: demonstrations decomposed to finetune the planner
     pretrain_episodes_per_task: int = 4  # base planner pretraining (pretraining tasks only)
+    # Tasks the base planner is pretrained on; null = the env's pretraining tasks (never evaluated).
+    pretrain_tasks: list[str] | None = None
     # Tasks whose training sub-tasks fill the database; null = the run's evaluation tasks.
     # abl_ood_beta decomposes tasks outside this list (out-of-distribution for RDD).
     database_tasks: list[str] | None = None
@@ -100,7 +102,10 @@ class RunConfig:
     encoder: Any = None
     index: Any = None
     decomposer: Any = None
-    labeler: Any = None
+    labeler: Any = None  # labels the decomposed demonstrations (every decomposer alike)
+    # Labels the expert-segmented training set (policy data and database entries); a node of its
+    # own because the retrieval labeler needs that database to exist first.
+    train_labeler: Any = None
     policy: Any = None
     planner: Any = None
 

@@ -76,7 +76,8 @@ class StageCache:
         return self.root / stage / key
 
     @contextlib.contextmanager
-    def _lock(self, stage: str, key: str) -> Iterator[None]:
+    def lock(self, stage: str, key: str) -> Iterator[None]:
+        """Exclusive lock on (stage, key) across processes (parallel sweep jobs)."""
         lock_dir = self.root / stage
         lock_dir.mkdir(parents=True, exist_ok=True)
         with open(lock_dir / f".{key}.lock", "w") as fh:
@@ -103,7 +104,7 @@ class StageCache:
         start = time.perf_counter()
         cached = True
         if not (final / SPEC_FILE).is_file():
-            with self._lock(stage, key):
+            with self.lock(stage, key):
                 if not (final / SPEC_FILE).is_file():  # another job may have built it meanwhile
                     cached = False
                     tmp = final.parent / f".tmp-{key}-{os.getpid()}-{time.time_ns()}"
@@ -129,11 +130,14 @@ class StageCache:
             self.timings[name] = StageTiming(prev.seconds + seconds, prev.cached and cached)
 
     @contextlib.contextmanager
-    def timed(self, name: str) -> Iterator[None]:
-        """Record the wall time of an uncached step (e.g. evaluation) under ``name``."""
+    def timed(self, name: str) -> Iterator[dict[str, bool]]:
+        """Record the wall time of a step under ``name``; set ``flag["cached"]`` if it did no work."""
+        flag = {"cached": False}
         start = time.perf_counter()
-        yield
-        self._record(name, time.perf_counter() - start, False)
+        try:
+            yield flag
+        finally:
+            self._record(name, time.perf_counter() - start, flag["cached"])
 
 
 def write_json_atomic(path: Path, obj: Any) -> None:

@@ -1,0 +1,277 @@
+"""The harness's calls into the other packages (envs, policy, planner, rdd), in one place.
+
+Each function here is the single point where a stage meets a package's public API, so the
+pipeline (``pipeline.py``) reads as data flow and a package's API change is fixed here only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from experiments.stages import read_json, write_json_atomic
+from rdd.segments import Segment
+
+PLANNER_FILE = "planner.json"
+
+
+def _plain(node: Any) -> Any:
+    if isinstance(node, DictConfig):
+        return OmegaConf.to_container(node, resolve=True)
+    return node
+
+
+# --- env -------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class EnvInfo:
+    """Task lists of the suite."""
+
+    all_tasks: tuple[str, ...]
+    evaluation_tasks: tuple[str, ...]
+    pretraining_tasks: tuple[str, ...]
+
+
+def env_info(env_cfg: DictConfig) -> EnvInfo:
+    """Which tasks the suite has, which are for planner pretraining and which are evaluated."""
+    from envs import tasks as suite
+
+    all_tasks = tuple(suite.task_names())
+    pre = tuple(suite.task_names(pretraining=True))
+    return EnvInfo(all_tasks, tuple(t for t in all_tasks if t not in pre), pre)
+
+
+def _env_options(env_cfg: DictConfig | None) -> dict[str, Any]:
+    return {k: v for k, v in (_plain(env_cfg) or {}).items() if not str(k).startswith("_")}
+
+
+def episodes_for(env_cfg: DictConfig, task: str, split: str, count: int, root: Path) -> list[Path]:
+    """Directories of the first ``count`` successful scripted demos of ``task`` in ``split``.
+
+    ``envs.generate`` is resumable and writes each episode atomically under ``root``, so a run
+    asking for 3 demos reuses the 1 an earlier run made; seeds come from the split's own range.
+    """
+    from envs.generate import episode_dir, generate
+
+    opts = _env_options(env_cfg)
+    used = generate([task], split, int(count), root, workers=1,
+                    image_size=int(opts.get("image_size", 128)), render=True, progress=False)
+    return [episode_dir(root, split, task, seed) for seed in used[task]]
+
+
+def load_episode(path: Path):
+    """A native episode directory."""
+    from rdd.data.native import load_episode as _load
+
+    return _load(path)
+
+
+def test_seed(index: int) -> int:
+    """The environment seed of evaluation episode ``index`` (the test split's range)."""
+    from envs.generate import SPLIT_SEEDS
+
+    seeds = SPLIT_SEEDS["test"]
+    if not 0 <= index < len(seeds):
+        raise ValueError(f"evaluation seed index {index} outside the test split ({len(seeds)} seeds)")
+    return seeds[index]
+
+
+def make_env(env_cfg: DictConfig, task: str):
+    """The gymnasium environment of ``task`` (options from the env config group)."""
+    from experiments.instantiate import instantiate_component
+
+    if env_cfg is not None and env_cfg.get("_target_"):
+        return instantiate_component(env_cfg, "env", task=task)
+    from envs.gym_env import make_env as _make
+
+    return _make(task, **_env_options(env_cfg))
+
+
+def episode_goal(env, info: dict[str, Any]) -> str:
+    """The language goal of the episode just reset."""
+    return str(info.get("goal") or env.scene_description()["goal"])
+
+
+def env_task(env) -> str:
+    """Name of the env's task."""
+    return str(env.task_name)
+
+
+def observation_image(obs: dict[str, Any], view: str):
+    """The planner's camera image in an env observation."""
+    key = f"{view}_rgb"
+    if key not in obs:
+        raise KeyError(f"observation has no image {key!r}; keys: {sorted(obs)}")
+    return obs[key]
+
+
+def policy_observation(env, obs: dict[str, Any]) -> dict[str, Any]:
+    """The env observation in the policy's form: unpadded object state plus the scene description."""
+    desc = env.scene_description()
+    k, m = len(desc["objects"]), len(desc["articulations"])
+    return {
+        **obs,
+        "objects": desc["objects"],
+        "articulations": desc["articulations"],
+        "object_positions": obs["object_positions"][:k],
+        "object_quaternions": obs["object_quaternions"][:k],
+        "articulation_states": obs["articulation_states"][:m],
+        "held_object": int(obs["held_object"][0]),
+        "gripper_open": float(obs["gripper_open"][0]),
+    }
+
+
+def action_array(action) -> Any:
+    """A policy's keyframe action as the env's 8-float action."""
+    return action.to_array() if hasattr(action, "to_array") else action
+
+
+# --- rdd -------------------------------------------------------------------------------------------
+def expert_segments(episode) -> list[Segment]:
+    """The RLBench keyframe rule's segmentation (the paper segments its training set with it)."""
+    from rdd.decomposers.expert import ExpertDecomposer
+
+    return [tuple(int(v) for v in s) for s in ExpertDecomposer().decompose(episode).segments]
+
+
+def miou(pred: Sequence[Segment], gt: Sequence[Segment]) -> float:
+    """The RDD paper's mIoU of a predicted segmentation against the expert's."""
+    from rdd.metrics import miou as _miou
+
+    return _miou(list(pred), list(gt))
+
+
+def embedding_cache(root: Path):
+    """The on-disk embedding cache shared by every run."""
+    from rdd.encoders.cache import EmbeddingCache
+
+    return EmbeddingCache(root)
+
+
+def build_database(episodes, segments, instructions, encoder, views, cache, out: Path) -> None:
+    """Build the sub-task database of expert-segmented episodes and save it into ``out``."""
+    from rdd.database import SubtaskDatabase
+
+    for ep, ins in zip(episodes, instructions, strict=True):
+        ep.instructions = list(ins)  # entries keep the labeller's instruction
+    db = SubtaskDatabase.build(episodes, segments, encoder, views=tuple(views), cache=cache)
+    db.save(out / "database")
+
+
+def load_database(path: Path):
+    """A saved sub-task database."""
+    from rdd.database import SubtaskDatabase
+
+    return SubtaskDatabase.load(path / "database")
+
+
+# --- policy ----------------------------------------------------------------------------------------
+POLICY_FILE = "policy.json"
+
+
+def train_policy(policy_cfg: DictConfig, episodes, segments, instructions, labeler, text_cache: Path,
+                 out: Path) -> None:
+    """Train the keyframe policy on expert-segmented episodes labelled by ``labeler`` into ``out``.
+
+    ``instructions`` are the labels the pipeline recorded for these segments; the policy's
+    dataset builder labels the same segments with the same labeler, which is checked here.
+    """
+    import dataclasses
+
+    from experiments.instantiate import instantiate_component
+    from policy.keyframe import train_or_load
+    from policy.text import shared_embedder
+
+    cfg = instantiate_component(policy_cfg, "policy")
+    eps = [dataclasses.replace(ep, segments=list(segs), instructions=list(ins))
+           for ep, segs, ins in zip(episodes, segments, instructions, strict=True)]
+    for ep in eps[:1]:
+        got = [labeler.label(ep, tuple(s)) for s in ep.segments]
+        if got != list(ep.instructions):
+            raise RuntimeError(f"labeler is not deterministic on {ep.name}: {got} != {ep.instructions}")
+    policy = train_or_load(eps, labeler, out, cfg, embedder=shared_embedder(text_cache))
+    write_json_atomic(out / POLICY_FILE, {"checkpoint": _relative(policy.checkpoint, out)})
+
+
+def load_policy(policy_cfg: DictConfig, path: Path, text_cache: Path):
+    """The trained policy stored in the stage directory ``path``."""
+    from policy.keyframe import KeyframeBCPolicy
+
+    info = read_json(path / POLICY_FILE)
+    return KeyframeBCPolicy.from_checkpoint(path / info["checkpoint"], text_cache_dir=text_cache)
+
+
+# --- planner ---------------------------------------------------------------------------------------
+def planner_config(planner_cfg: DictConfig):
+    """The planner's typed config (``planner.config.PlannerConfig``) from its group node."""
+    from experiments.instantiate import instantiate_component
+
+    return instantiate_component(planner_cfg, "planner")
+
+
+def planner_view(planner_cfg: DictConfig) -> str:
+    """The camera view the planner sees (as in its training examples)."""
+    return planner_config(planner_cfg).view
+
+
+def planner_base_spec(planner_cfg: DictConfig) -> dict[str, Any]:
+    """The part of the planner config that makes the base (finetuning settings excluded)."""
+    cfg = planner_config(planner_cfg)
+    return {"model": cfg.model_dict()}
+
+
+def _examples(cfg, episodes, segments, instructions, inner: bool) -> list:
+    from planner.dataset import examples_from_episode
+
+    out = []
+    for ep, segs, ins in zip(episodes, segments, instructions, strict=True):
+        out += examples_from_episode(ep, segs, ins, view=cfg.view, include_inner_frames=inner)
+    return out
+
+
+def pretrain_planner(planner_cfg: DictConfig, episodes, segments, instructions,
+                     corpus: Sequence[str], out: Path) -> None:
+    """Pretrain the base planner on the pretraining tasks' demos (its tokenizer also sees ``corpus``)."""
+    from planner.train import pretrain_base
+
+    cfg = planner_config(planner_cfg)
+    examples = _examples(cfg, episodes, segments, instructions, cfg.pretrain.include_inner_frames)
+    path = pretrain_base(cfg, examples, out, extra_corpus=list(corpus), progress=False)
+    write_json_atomic(out / PLANNER_FILE, {"base": _relative(path, out)})
+
+
+def finetune_planner(planner_cfg: DictConfig, base_dir: Path, episodes, segments, instructions,
+                     seed: int, out: Path) -> None:
+    """LoRA-finetune the base planner on decomposed, labelled demonstrations."""
+    from planner.train import finetune_lora
+
+    cfg = planner_config(planner_cfg)
+    examples = _examples(cfg, episodes, segments, instructions, cfg.finetune.include_inner_frames)
+    path = finetune_lora(cfg, _resolve(base_dir), examples, out, seed=seed, progress=False)
+    write_json_atomic(out / PLANNER_FILE, {"adapter": _relative(path, out)})
+
+
+def _relative(path: Path, root: Path) -> str:
+    try:
+        return str(Path(path).relative_to(root))
+    except ValueError:
+        return str(path)  # outside the stage (a real checkpoint): keep its absolute path
+
+
+def _resolve(stage_dir: Path) -> Path:
+    info = read_json(stage_dir / PLANNER_FILE)
+    rel = info.get("base") or info.get("adapter")
+    p = Path(rel)
+    return p if p.is_absolute() else stage_dir / p
+
+
+def load_planner(planner_cfg: DictConfig, base_stage: Path, finetune_stage: Path | None):
+    """The planner: the base, plus the LoRA adapter when finetuned."""
+    from planner.planner import Planner
+
+    cfg = planner_config(planner_cfg)
+    adapter = None if finetune_stage is None else _resolve(finetune_stage)
+    return Planner(cfg, _resolve(base_stage), adapter)

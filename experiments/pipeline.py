@@ -1,0 +1,548 @@
+"""One run of the harness: cached stages, then closed-loop evaluation, then ``results.json``.
+
+Stages (each cached under ``paths.cache_dir`` by the config that affects it, see ``stages.py``):
+episodes per task and split -> expert segmentation + labels -> policy -> sub-task database (per
+encoder) -> decomposition of the M validation demos -> planner base (pretraining tasks) -> planner
+finetune (per decomposer, encoder, M, seed) -> evaluation (per planner, policy, evaluation seeds).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from experiments import components as comp
+from experiments.instantiate import check_component, instantiate_component, wanted_providers
+from experiments.results import (
+    RESULTS_FILE,
+    RESULTS_FORMAT,
+    average_success,
+    method_label,
+    per_task_success,
+)
+from experiments.stages import StageCache, read_json, spec_key, write_json_atomic
+
+log = logging.getLogger(__name__)
+
+COMPONENT_GROUPS = ("env", "encoder", "index", "decomposer", "labeler", "train_labeler", "policy",
+                    "planner")
+
+
+class Unavailable(RuntimeError):
+    """A component cannot run on this machine (e.g. an encoder whose weights are absent)."""
+
+
+def _hydra_info() -> tuple[Path | None, dict[str, Any], list[str], bool, int]:
+    """(output dir, group choices, task overrides, is multirun, parallel jobs) from Hydra if active."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        hc = HydraConfig.get()
+    except (ImportError, ValueError):
+        return None, {}, [], False, 1
+    choices = {k: v for k, v in OmegaConf.to_container(hc.runtime.choices).items()
+               if not k.startswith("hydra")}
+    multirun = hc.mode == RunMode.MULTIRUN
+    n_jobs = int(OmegaConf.select(hc, "launcher.n_jobs", default=1) or 1) if multirun else 1
+    return Path(hc.runtime.output_dir), choices, list(hc.overrides.task), multirun, n_jobs
+
+
+def _set_threads(cfg: DictConfig, n_jobs: int) -> int:
+    import torch
+
+    threads = cfg.threads
+    if threads is None:
+        cores = os.cpu_count() or 1
+        threads = max(1, cores // max(1, n_jobs if n_jobs > 0 else cores))
+    torch.set_num_threads(int(threads))
+    return int(threads)
+
+
+def _hardware() -> dict[str, Any]:
+    import torch
+
+    return {
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "cuda": bool(torch.cuda.is_available()),
+    }
+
+
+class Run:
+    """State shared by the stages of one run."""
+
+    def __init__(self, cfg: DictConfig, out_dir: Path, cache: StageCache):
+        self.cfg = cfg
+        self.out_dir = out_dir
+        self.cache = cache
+        self.views = list(cfg.views)
+        self._encoder = None
+        self._encoder_key: str | None = None
+        self._database = None
+        self._database_key: str | None = None
+        self._episode_cache: dict[str, Any] = {}
+        self._episode_keys: dict[str, str] = {}  # episode name -> its stage key
+        self._labeler = None
+        self._train_labeler = None
+        self.env_info = comp.env_info(cfg.env)
+        self.eval_tasks = self._eval_tasks()
+        self.pretrain_tasks = self._pretrain_tasks()
+
+    # --- configuration pieces that key the stages -------------------------------------------
+    def _eval_tasks(self) -> list[str]:
+        tasks = list(self.cfg.tasks) if self.cfg.tasks is not None else list(self.env_info.evaluation_tasks)
+        known = set(self.env_info.all_tasks)
+        unknown = [t for t in tasks if t not in known]
+        if unknown:
+            raise ValueError(f"tasks: unknown task(s) {unknown}; the env has {sorted(known)}")
+        if not tasks:
+            raise ValueError("tasks: no evaluation task selected")
+        return tasks
+
+    def _pretrain_tasks(self) -> list[str]:
+        tasks = self.cfg.data.pretrain_tasks
+        tasks = list(self.env_info.pretraining_tasks) if tasks is None else list(tasks)
+        overlap = sorted(set(tasks) & set(self.eval_tasks))
+        if overlap:
+            raise ValueError(f"data.pretrain_tasks {overlap} are also evaluated: the base planner "
+                             "must never see an evaluation task")
+        unknown = [t for t in tasks if t not in set(self.env_info.all_tasks)]
+        if unknown or not tasks:
+            raise ValueError(f"data.pretrain_tasks: unknown or no task(s) {unknown or tasks}")
+        return tasks
+
+    def node(self, group: str) -> dict[str, Any]:
+        """A component's resolved config as a plain dict (part of stage keys)."""
+        node = self.cfg.get(group)
+        return {} if node is None else OmegaConf.to_container(node, resolve=True)
+
+    # --- runtime objects -----------------------------------------------------------------------
+    def encoder(self):
+        """The visual encoder (loaded once; missing weights fail here, before any long work)."""
+        if self._encoder is None:
+            try:
+                self._encoder = instantiate_component(self.cfg.encoder, "encoder")
+            except (FileNotFoundError, ImportError, OSError) as exc:
+                raise Unavailable(f"encoder {self.cfg.encoder.get('name', '?')!r}: {exc}") from exc
+            self._encoder_key = spec_key({"encoder": self.node("encoder"),
+                                          "weights_id": self._encoder.weights_id})
+        return self._encoder
+
+    def encoder_key(self) -> str:
+        """Key of the encoder's config and weights."""
+        self.encoder()
+        assert self._encoder_key is not None
+        return self._encoder_key
+
+    def embedding_cache(self):
+        """The shared on-disk embedding cache."""
+        return comp.embedding_cache(Path(self.cfg.paths.cache_dir) / "embeddings")
+
+    # --- stages ----------------------------------------------------------------------------------
+    def episodes(self, task: str, split: str, count: int) -> list:
+        """The first ``count`` successful scripted demos of ``task`` in ``split`` (cached).
+
+        Generation is resumable per episode, so a run asking for 3 demos reuses the 1 an earlier
+        run made; each episode's key is its env config, task, split and seed.
+        """
+        env_key = spec_key({"env": self.node("env")})
+        root = self.cache.root / "demos" / env_key
+        with self.cache.lock("demos", f"{env_key}-{task}-{split}"), \
+                self.cache.timed("episodes") as timing:
+            before = set(root.glob(f"{split}/{task}/*/episode.json"))
+            dirs = comp.episodes_for(self.cfg.env, task, split, count, root)
+            timing["cached"] = all(d / "episode.json" in before for d in dirs)
+        out = []
+        for d in dirs:
+            key = spec_key({"env": self.node("env"), "episode": d.name, "split": split})
+            if key not in self._episode_cache:
+                ep = comp.load_episode(d)
+                self._episode_cache[key] = ep
+                self._episode_keys[ep.name] = key
+            out.append(self._episode_cache[key])
+        return out
+
+    def expert_labels(self, task: str, split: str, count: int) -> tuple[list, list, list, str]:
+        """Episodes with expert segments and labeller instructions, and a key over them."""
+        episodes = self.episodes(task, split, count)
+        segments, instructions, keys = [], [], []
+        for ep in episodes:
+            spec = {"episode": self._episode_keys[ep.name], "labeler": self.node("train_labeler")}
+
+            def build(tmp: Path, ep=ep) -> None:
+                labeler = self.train_labeler()
+                segs = comp.expert_segments(ep)
+                write_json_atomic(tmp / "labels.json", {
+                    "episode": ep.name, "segments": [list(s) for s in segs],
+                    "instructions": [labeler.label(ep, tuple(s)) for s in segs]})
+
+            path, key = self.cache.get_or_build("expert_labels", spec, build)
+            row = read_json(path / "labels.json")
+            segments.append([tuple(s) for s in row["segments"]])
+            instructions.append(row["instructions"])
+            keys.append(key)
+        return episodes, segments, instructions, spec_key({"parts": keys})
+
+    def labelled_set(self, tasks: list[str], split: str, count: int) -> tuple[list, list, list, str]:
+        """Expert-segmented, labelled episodes of several tasks, and a key over all of them."""
+        eps, segs, instr, keys = [], [], [], []
+        for task in tasks:
+            e, s, i, k = self.expert_labels(task, split, count)
+            eps += e
+            segs += s
+            instr += i
+            keys.append(k)
+        return eps, segs, instr, spec_key({"parts": keys})
+
+    def policy_stage(self) -> tuple[Path, str]:
+        """The keyframe policy trained on expert-decomposed, labelled training episodes."""
+        eps, segs, instr, data_key = self.labelled_set(
+            self.policy_tasks(), "train", int(self.cfg.data.train_episodes_per_task))
+        spec = {"policy": self.node("policy"), "data": data_key}
+        return self.cache.get_or_build(
+            "policy", spec,
+            lambda tmp: comp.train_policy(self.cfg.policy, eps, segs, instr, self.train_labeler(),
+                                          self.text_cache(), tmp))
+
+    def labeler(self):
+        """The labeller of decomposed demonstrations, shared by every decomposer (built once)."""
+        if self._labeler is None:
+            self._labeler = instantiate_component(self.cfg.labeler, "labeler", self.providers())
+        return self._labeler
+
+    def train_labeler(self):
+        """The labeller of the expert-segmented training set (built once)."""
+        if self._train_labeler is None:
+            self._train_labeler = instantiate_component(self.cfg.train_labeler, "train_labeler")
+        return self._train_labeler
+
+    def text_cache(self) -> Path:
+        """Shared cache of instruction embeddings (the policy's sentence encoder)."""
+        return Path(self.cfg.paths.cache_dir) / "text"
+
+    def policy_tasks(self) -> list[str]:
+        """Tasks the policy learns: every evaluation task of this run."""
+        return list(self.eval_tasks)
+
+    def database_tasks(self) -> list[str]:
+        """Tasks whose expert sub-tasks fill the database (default: the evaluation tasks)."""
+        tasks = self.cfg.data.database_tasks
+        if tasks is None:
+            return list(self.eval_tasks)
+        tasks = list(tasks)
+        unknown = [t for t in tasks if t not in set(self.env_info.all_tasks)]
+        if unknown or not tasks:
+            raise ValueError(f"data.database_tasks: unknown or no task(s) {unknown or tasks}")
+        return tasks
+
+    def database(self):
+        """The sub-task database of the training episodes under this run's encoder."""
+        if self._database is None:
+            tasks = self.database_tasks()
+            eps, segs, instr, data_key = self.labelled_set(
+                tasks, "train", int(self.cfg.data.train_episodes_per_task))
+            spec = {"data": data_key, "encoder": self.encoder_key(), "views": self.views}
+            path, key = self.cache.get_or_build(
+                "database", spec,
+                lambda tmp: comp.build_database(eps, segs, instr, self.encoder(), self.views,
+                                                self.embedding_cache(), tmp))
+            self._database = comp.load_database(path)
+            self._database_key = key
+        return self._database
+
+    def providers(self) -> dict[str, Any]:
+        """Runtime objects a component may ask for by parameter name."""
+        return {
+            "database": self.database,
+            "encoder": self.encoder,
+            "views": lambda: tuple(self.views),
+            "cache": self.embedding_cache,
+            "embedding_cache": self.embedding_cache,
+            # The `index` group's retrieval backend, for decomposers that leave `backend` unset.
+            "backend": lambda: instantiate_component(self.cfg.index, "index"),
+            "index": lambda: instantiate_component(self.cfg.index, "index"),
+        }
+
+    def decomposer_wants(self) -> list[str]:
+        """Runtime objects the selected decomposer takes (empty for the w/o-finetune planner)."""
+        if not finetunes(self.cfg):
+            return []
+        return wanted_providers(self.cfg.decomposer, "decomposer", self.providers())
+
+    def runtime_key_parts(self, group: str) -> dict[str, Any]:
+        """What a component's output depends on besides its config: the runtime objects it takes."""
+        node = self.cfg.get(group)
+        parts: dict[str, Any] = {group: self.node(group)}
+        if node is None or not node.get("_target_"):
+            return parts
+        wants = wanted_providers(node, group, self.providers())
+        if "encoder" in wants or "database" in wants:
+            parts["encoder"] = self.encoder_key()
+        if "database" in wants:
+            self.database()
+            parts["database"] = self._database_key
+        if "backend" in wants or "index" in wants:
+            parts["index"] = self.node("index")
+        if "views" in wants:
+            parts["views"] = self.views
+        return parts
+
+    def decompositions(self, tasks: list[str]) -> tuple[list[dict[str, Any]], str]:
+        """Decompose and label the M validation demos of each task; rows + key."""
+        m = int(self.cfg.data.val_episodes_per_task)
+        parts = {**self.runtime_key_parts("decomposer"), **self.runtime_key_parts("labeler")}
+        rows: list[dict[str, Any]] = []
+        keys = []
+        for task in tasks:
+            episodes, expert, _, expert_key = self.expert_labels(task, "val", m)
+            spec = {"demos": expert_key, **parts}
+
+            def build(tmp: Path, episodes=episodes, expert=expert) -> None:
+                decomposer = instantiate_component(self.cfg.decomposer, "decomposer", self.providers())
+                labeler = self.labeler()
+                out = []
+                for ep, gt in zip(episodes, expert, strict=True):
+                    t0 = time.perf_counter()
+                    dec = decomposer.decompose(ep)
+                    seconds = time.perf_counter() - t0
+                    segs = [tuple(int(v) for v in s) for s in dec.segments]
+                    out.append({
+                        "episode": ep.name, "task": ep.task, "num_frames": ep.num_frames,
+                        "segments": [list(s) for s in segs],
+                        "instructions": [labeler.label(ep, s) for s in segs],
+                        "expert_segments": [list(s) for s in gt],
+                        "miou": float(comp.miou(segs, gt)),
+                        "novelty": None if dec.novelty is None else float(dec.novelty),
+                        "seconds": seconds,
+                    })
+                write_json_atomic(tmp / "decompositions.json", out)
+
+            path, key = self.cache.get_or_build("decompositions", spec, build)
+            keys.append(key)
+            rows += read_json(path / "decompositions.json")
+        return rows, spec_key({"parts": keys})
+
+    def base_planner_dir(self) -> tuple[Path, str]:
+        """The base planner pretrained on the pretraining tasks' expert demos (the w/o-finetune one)."""
+        eps, segs, instr, data_key = self.labelled_set(
+            self.pretrain_tasks, "train", int(self.cfg.data.pretrain_episodes_per_task))
+        # The tokenizer also covers the evaluation tasks' goals and labeller vocabulary (the paper's
+        # planner is a pretrained VLM that already knows the words); no evaluation demo is trained on.
+        vocab_eps, _, vocab_instr, vocab_key = self.labelled_set(
+            self.eval_tasks, "train", int(self.cfg.data.train_episodes_per_task))
+        corpus = sorted({s for ii in instr + vocab_instr for s in ii}
+                        | {e.goal for e in eps + vocab_eps})
+        spec = {"planner": comp.planner_base_spec(self.cfg.planner), "data": data_key,
+                "vocabulary": vocab_key}
+        return self.cache.get_or_build(
+            "planner_base", spec,
+            lambda tmp: comp.pretrain_planner(self.cfg.planner, eps, segs, instr, corpus, tmp))
+
+    def planner_stage(self) -> tuple[Path, Path | None, str, dict[str, Any]]:
+        """The planner for this run: the base, or the base LoRA-finetuned on the decomposed demos.
+
+        Returns (base stage dir, finetune stage dir or None, planner key, info).
+        """
+        base_dir, base_key = self.base_planner_dir()
+        info: dict[str, Any] = {"base": base_key}
+        if not finetunes(self.cfg):
+            return base_dir, None, base_key, info
+        rows, dec_key = self.decompositions(self.eval_tasks)
+        info["decompositions"] = rows
+        episodes = {e.name: e for t in self.eval_tasks
+                    for e in self.episodes(t, "val", int(self.cfg.data.val_episodes_per_task))}
+        eps = [episodes[r["episode"]] for r in rows]
+        segs = [[tuple(s) for s in r["segments"]] for r in rows]
+        instr = [r["instructions"] for r in rows]
+        spec = {"planner": self.node("planner"), "base": base_key, "decompositions": dec_key,
+                "seed": int(self.cfg.seed)}
+        path, key = self.cache.get_or_build(
+            "planner_finetune", spec,
+            lambda tmp: comp.finetune_planner(self.cfg.planner, base_dir, eps, segs, instr,
+                                              int(self.cfg.seed), tmp))
+        info["finetune"] = key
+        return base_dir, path, key, info
+
+    def evaluation_seeds(self, n: int) -> list[int]:
+        """Test-split seed indices of this run's evaluation episodes."""
+        base = int(self.cfg.seed) * int(self.cfg.eval.seed_stride)
+        if n > int(self.cfg.eval.seed_stride):
+            raise ValueError(f"eval.episodes_per_task={n} exceeds eval.seed_stride")
+        return [base + i for i in range(n)]
+
+
+def finetunes(cfg: DictConfig) -> bool:
+    """Whether the planner is finetuned: decomposer `none` (no _target_) keeps the base planner."""
+    node = cfg.get("decomposer")
+    return node is not None and bool(node.get("_target_"))
+
+
+def preflight(run: Run) -> None:
+    """Cheap checks before any long work: component options, and the runtime objects needed."""
+    for group in COMPONENT_GROUPS:
+        node = run.cfg.get(group)
+        if node is not None and node.get("_target_"):
+            check_component(node, group)
+    if set(run.decomposer_wants()) & {"encoder", "database"}:
+        run.encoder()  # a missing checkpoint fails here, at once
+
+
+def run(cfg: DictConfig) -> dict[str, Any]:
+    """Run one configuration end to end; writes results.json and returns its summary."""
+    out_dir, choices, overrides, multirun, n_jobs = _hydra_info()
+    if out_dir is None:
+        out_dir = Path(OmegaConf.select(cfg, "output_dir", default=None) or "outputs/run")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    threads = _set_threads(cfg, n_jobs)
+    mode = str(OmegaConf.select(cfg, "mode")).split(".")[-1]
+    resolved = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
+    write_json_atomic(out_dir / "config_resolved.json", resolved)
+    results: dict[str, Any] = {
+        "format": RESULTS_FORMAT,
+        "status": "ok",
+        "mode": mode,
+        "seed": int(cfg.seed),
+        "choices": choices,
+        "overrides": overrides,
+        "label": method_label(overrides, choices),
+        "hardware": {**_hardware(), "torch_threads": threads, "parallel_jobs": n_jobs},
+        "config": resolved,
+    }
+    from experiments.tracking import Tracker
+
+    tracker = Tracker(cfg.wandb, resolved, out_dir,
+                      name=f"{choices.get('experiment', 'run')}-{results['label']}-s{cfg.seed}")
+    t_start = time.perf_counter()
+    cache = StageCache(Path(cfg.paths.cache_dir))
+    try:
+        if mode == "speed":
+            from experiments.speed import measure_speed
+
+            with cache.timed("speed"):
+                results["speed"] = measure_speed(cfg)
+        else:
+            run_obj = Run(cfg, out_dir, cache)
+            try:
+                preflight(run_obj)
+            except Unavailable as exc:
+                if not cfg.skip_unavailable:
+                    raise
+                results.update(status="skipped", reason=str(exc))
+                log.warning("skipped: %s", exc)
+            if results["status"] == "ok":
+                if mode == "decompose":
+                    _decompose_only(run_obj, results)
+                else:
+                    _hierarchical(run_obj, results)
+    except BaseException as exc:
+        results.update(status="failed", reason=f"{type(exc).__name__}: {exc}")
+        raise
+    finally:
+        results["timings"] = {k: {"seconds": round(v.seconds, 3), "cached": v.cached}
+                              for k, v in cache.timings.items()}
+        results["wall_seconds"] = round(time.perf_counter() - t_start, 3)
+        write_json_atomic(out_dir / RESULTS_FILE, results)
+        tracker.log(_metrics(results))
+        tracker.finish()
+    summary = {
+        "output_dir": str(out_dir),
+        "status": results["status"],
+        "main_metric": results.get("average_success", (results.get("decomposition") or {}).get("miou")),
+    }
+    if cfg.print_table:
+        from experiments.results import RunRecord
+        from experiments.tables import build_tables
+
+        for tables in build_tables([RunRecord(out_dir / RESULTS_FILE, results)]).values():
+            for table in tables:
+                print(table.markdown())
+        print(f"results: {out_dir / RESULTS_FILE}")
+    return summary
+
+
+def _metrics(results: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if results.get("average_success") is not None:
+        out["success/average"] = results["average_success"]
+    for task, row in (results.get("per_task") or {}).items():
+        out[f"success/{task}"] = row["success_rate"]
+    dec = results.get("decomposition") or {}
+    if dec.get("miou") is not None:
+        out["decomposition/miou"] = dec["miou"]
+    for name, t in (results.get("timings") or {}).items():
+        out[f"time/{name}"] = t["seconds"]
+    return out
+
+
+def _decomposition_block(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    per_task: dict[str, list[float]] = {}
+    for r in rows:
+        per_task.setdefault(r["task"], []).append(r["miou"])
+    return {
+        "miou": float(np.mean([r["miou"] for r in rows])) if rows else None,
+        "per_task": {t: float(np.mean(v)) for t, v in per_task.items()},
+        "num_demos": len(rows),
+        "demos": [{k: r[k] for k in ("episode", "task", "num_frames", "segments", "instructions",
+                                     "expert_segments", "miou", "novelty", "seconds")} for r in rows],
+    }
+
+
+def _decompose_only(run: Run, results: dict[str, Any]) -> None:
+    if not finetunes(run.cfg):
+        raise ValueError("mode=decompose needs a decomposer (decomposer=none decomposes nothing)")
+    rows, _ = run.decompositions(run.eval_tasks)
+    results["tasks"] = run.eval_tasks
+    results["decomposition"] = _decomposition_block(rows)
+
+
+def _hierarchical(run: Run, results: dict[str, Any]) -> None:
+    from experiments.evaluation import evaluate
+
+    policy_dir, policy_key = run.policy_stage()
+    base_dir, adapter_dir, planner_key, info = run.planner_stage()
+    if "decompositions" in info:
+        results["decomposition"] = _decomposition_block(info["decompositions"])
+    seeds = [comp.test_seed(i) for i in run.evaluation_seeds(int(run.cfg.eval.episodes_per_task))]
+    loaded: dict[str, Any] = {}
+
+    def models() -> tuple[Any, Any]:
+        # Loaded on the first uncached task only: a finished config reruns without loading them.
+        if not loaded:
+            loaded["policy"] = comp.load_policy(run.cfg.policy, policy_dir, run.text_cache())
+            loaded["planner"] = comp.load_planner(run.cfg.planner, base_dir, adapter_dir)
+        return loaded["planner"], loaded["policy"]
+
+    episodes: list[dict[str, Any]] = []
+    for task in run.eval_tasks:
+        spec = {"planner": planner_key, "policy": policy_key, "env": run.node("env"), "task": task,
+                "seeds": seeds, "max_steps": int(run.cfg.eval.max_steps)}
+
+        def build(tmp: Path, task=task) -> None:
+            planner, policy = models()
+            rows = evaluate(run.cfg.env, task, seeds, planner, policy, int(run.cfg.eval.max_steps),
+                            view=comp.planner_view(run.cfg.planner))
+            write_json_atomic(tmp / "episodes.json", [r.to_dict() for r in rows])
+
+        path, _ = run.cache.get_or_build("evaluation", spec, build)
+        episodes += read_json(path / "episodes.json")
+    per_task = per_task_success(episodes)
+    results.update(
+        tasks=run.eval_tasks,
+        evaluation_seeds={"split": "test", "env_seeds": seeds},
+        episodes=episodes,
+        per_task=per_task,
+        average_success=average_success(per_task),
+        planner=planner_key,
+        policy=policy_key,
+    )

@@ -1,0 +1,67 @@
+"""Weights & Biases logging of a run's config and metrics (``offline`` by default, no account needed)."""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+WANDB_MODES = ("online", "offline", "disabled")
+
+
+class Tracker:
+    """A wandb run, or nothing when ``mode=disabled``."""
+
+    def __init__(self, wandb_cfg: Any, config: dict[str, Any], out_dir: Path, name: str):
+        mode = str(wandb_cfg.mode)
+        if mode not in WANDB_MODES:
+            raise ValueError(f"wandb.mode={mode!r}: choose one of {WANDB_MODES}")
+        self._run = None
+        if mode == "disabled":
+            return
+        try:
+            import wandb
+        except ImportError as exc:
+            raise ImportError("wandb logging needs `pip install wandb` (or set wandb.mode=disabled)") from exc
+        # wandb's own console capture and background service are not needed for offline files.
+        os.environ.setdefault("WANDB_SILENT", "true")
+        os.environ.setdefault("WANDB_CONSOLE", "off")
+        self._run = wandb.init(
+            project=wandb_cfg.project,
+            entity=wandb_cfg.entity,
+            group=wandb_cfg.group,
+            tags=list(wandb_cfg.tags),
+            name=name,
+            mode=mode,
+            dir=str(out_dir),
+            config=config,
+            reinit="finish_previous",
+        )
+
+    def log(self, metrics: dict[str, Any]) -> None:
+        """Log scalar metrics (non-numbers are dropped)."""
+        if self._run is None:
+            return
+        flat = {k: v for k, v in _flatten(metrics).items() if isinstance(v, int | float) and not isinstance(v, bool)}
+        self._run.log(flat)
+        for k, v in flat.items():
+            self._run.summary[k] = v
+
+    def finish(self) -> None:
+        """Close the run (files flushed)."""
+        if self._run is not None:
+            self._run.finish()
+            self._run = None
+
+
+def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, key + "/"))
+        else:
+            out[key] = v
+    return out

@@ -1,0 +1,44 @@
+"""Entry point of the harness: ``python run.py [group=option ...]``, ``python run.py -m ...`` for sweeps.
+
+Thin on purpose: Hydra composes the config, ``experiments.pipeline.run`` does the work and returns
+its summary; the main metric (average success, or mIoU for decomposition-only runs) is returned so
+sweepers can use it.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import hydra
+from omegaconf import DictConfig
+
+import experiments.schemas  # noqa: F401  (registers the typed schema `base_config`)
+
+log = logging.getLogger("run")
+
+
+@hydra.main(version_base="1.3", config_path="conf", config_name="config")
+def main(cfg: DictConfig) -> float | None:
+    """Run one configuration and return its main metric."""
+    from experiments.pipeline import run
+
+    try:
+        summary = run(cfg)
+    except Exception:
+        log.exception("run failed (output directory: %s)", _output_dir())
+        raise
+    log.info("output directory: %s", summary.get("output_dir"))
+    return summary.get("main_metric")
+
+
+def _output_dir() -> str:
+    from hydra.core.hydra_config import HydraConfig
+
+    try:
+        return HydraConfig.get().runtime.output_dir
+    except ValueError:
+        return "?"
+
+
+if __name__ == "__main__":
+    main()
