@@ -24,7 +24,11 @@ from rdd.data.episode import Episode
 
 GRIPPER_ANCHOR = "the gripper"
 WORLD_ANCHOR = "the table"
-STATE_DIM = 4  # held flag, articulation opening (0..1), fixture flag, has-articulation flag
+# held flag, articulation opening (0..1), fixture flag, has-articulation flag, rests on another
+# object, carries another object (the last two tell a stacked block from a free one of the
+# same colour: their heights differ by a plate's thickness only).
+STATE_DIM = 6
+SUPPORT_MARGIN = 0.01  # metres of horizontal slack in the footprint test
 OBS_KEYS = ("ee_pose", "gripper_open", "object_positions", "object_quaternions",
             "articulation_states", "held_object", "objects", "articulations")
 
@@ -78,11 +82,33 @@ def anchors_from_observation(obs: Mapping[str, Any]) -> Anchors:
                 span = span if abs(span) > 1e-9 else 1.0
                 state[i, 1] = (astate[m] - float(a.get("closed", 0.0))) / span
                 state[i, 3] = 1.0
+    on = _resting_on(opos, objects)
+    for i in range(k):
+        state[i, 4] = 1.0 if (on[i] >= 0 and i != held) else 0.0
+        state[i, 5] = 1.0 if any(on[j] == i and j != held for j in range(k)) else 0.0
     state[k, 0] = 1.0 if held >= 0 else 0.0  # the gripper anchor: holding something
     names = [object_label(o) for o in objects] + [GRIPPER_ANCHOR, WORLD_ANCHOR]
     pos = np.concatenate([opos, ee[None, :3], np.zeros((1, 3))])
     yaw = np.concatenate([yaw_of(oquat), [yaw_of(ee[3:7])], [0.0]])
     return Anchors(names, pos, yaw, state, np.concatenate([ee, [grip]]))
+
+
+def _resting_on(pos: np.ndarray, objects: list[dict]) -> list[int]:
+    """For each object, the index of the non-fixture object right under it (-1 for none)."""
+    sizes = np.array([o.get("size", [0.0, 0.0, 0.0]) for o in objects], dtype=np.float64).reshape(-1, 3)
+    out = []
+    for i in range(len(objects)):
+        best, best_z = -1, -np.inf
+        for j, o in enumerate(objects):
+            if j == i or o.get("role") == "fixture":
+                continue
+            inside = np.all(np.abs(pos[i, :2] - pos[j, :2]) <= 0.5 * sizes[j, :2] + SUPPORT_MARGIN)
+            gap = pos[i, 2] - pos[j, 2]
+            # Directly on top: the centres are at most the two half-heights (+2 cm) apart.
+            if inside and 0 < gap <= 0.5 * (sizes[i, 2] + sizes[j, 2]) + 0.02 and pos[j, 2] > best_z:
+                best, best_z = j, pos[j, 2]
+        out.append(best)
+    return out
 
 
 def observation_at(episode: Episode, t: int) -> dict[str, Any]:

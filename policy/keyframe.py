@@ -22,7 +22,7 @@ import torch
 
 from policy.features import STATE_DIM, Anchors, anchors_from_observation, observation_at
 from policy.interface import KeyframeAction, Policy
-from policy.network import KeyframeNet, NetConfig
+from policy.network import KeyframeNet, NetConfig, gripper_equivalent
 from policy.text import InstructionEmbedder, shared_embedder
 from policy.training import (
     KeyframeDataset,
@@ -180,9 +180,12 @@ class KeyframeBCPolicy(Policy):
         )
         sel = KeyframeNet.select(pred)
         self.last_anchor = a.names[int(sel["anchor"][0])]
+        # The gripper is symmetric under a half turn about its approach axis: of the two
+        # equivalent orientations take the one nearer the hand's current one (no needless spin).
+        quat = gripper_equivalent(sel["quaternion"], torch.as_tensor(a.proprio[None, 3:7], dtype=torch.float32))
         return KeyframeAction(
             position=sel["position"][0].numpy(),
-            quaternion=sel["quaternion"][0].numpy(),
+            quaternion=quat[0].numpy(),
             gripper_open=bool(sel["gripper_open"][0] >= 0.5),
         )
 

@@ -25,9 +25,9 @@ class NetConfig:
 
     text_dim: int = 384
     proprio_dim: int = 8  # ee xyz + quat xyzw + gripper
-    state_dim: int = 4  # per-anchor extra state (e.g. articulation, held flag)
+    state_dim: int = 6  # per-anchor extra state (policy.features.STATE_DIM)
     hidden: int = 96
-    pos_sigma: float = 0.02  # metres; width of the mixture's position likelihood
+    pos_sigma: float = 0.005  # metres; width of the mixture's position likelihood
     rot_kappa: float = 20.0  # concentration of the orientation likelihood
     gripper_weight: float = 2.0
     match_scale: float = 20.0  # initial gain of the instruction-name cosine similarity
@@ -35,6 +35,16 @@ class NetConfig:
     def to_dict(self) -> dict:
         """Plain dict (for checkpoints and cache keys)."""
         return asdict(self)
+
+
+HALF_TURN_Z = torch.tensor([0.0, 0.0, 1.0, 0.0])  # xyzw: rotation by pi about the local z axis
+
+
+def gripper_equivalent(q: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+    """Of ``q`` and ``q`` turned by pi about the approach axis, the one nearer ``reference``."""
+    alt = quat_multiply(q, HALF_TURN_Z.to(q))
+    keep = (q * reference).sum(-1).abs() >= (alt * reference).sum(-1).abs()
+    return torch.where(keep[..., None], q, alt)
 
 
 def yaw_quaternion(yaw: torch.Tensor) -> torch.Tensor:
@@ -171,7 +181,11 @@ class KeyframeNet(nn.Module):
         c = self.cfg
         sigma = c.pos_sigma if pos_sigma is None else pos_sigma
         d2 = ((pred["position"] - target_pos[:, None, :]) ** 2).sum(-1)
-        cos2 = (pred["quaternion"] * target_quat[:, None, :]).sum(-1) ** 2  # sign-invariant
+        # Sign-invariant, and invariant to the parallel gripper's half turn about its approach axis
+        # (the expert's two finger directions grasp alike, so they are one target, not two modes).
+        flipped = quat_multiply(target_quat, HALF_TURN_Z.to(target_quat))
+        cos2 = torch.maximum((pred["quaternion"] * target_quat[:, None, :]).sum(-1) ** 2,
+                             (pred["quaternion"] * flipped[:, None, :]).sum(-1) ** 2)
         comp = -d2 / (2 * sigma**2) + c.rot_kappa * (cos2 - 1.0)
         nll = -(torch.logsumexp(pred["log_weights"] + comp, dim=-1)).mean()
         grip = F.binary_cross_entropy_with_logits(pred["gripper_logit"], target_open)

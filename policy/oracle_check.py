@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from experiments.labeler import PrivilegedLabeler
-from policy.interface import Policy
+from policy.interface import KeyframeAction, Policy
 from policy.keyframe import PolicyTrainConfig, train_or_load
 from policy.training import TrainConfig
 from rdd.data.episode import Episode
@@ -82,6 +82,13 @@ def live_observation(scene, task) -> dict[str, Any]:
     }
 
 
+def half_turn(action: KeyframeAction) -> KeyframeAction:
+    """The same keyframe with the hand turned by pi about its approach (local z) axis."""
+    x, y, z, w = action.quaternion
+    # q * (0, 0, 1, 0) in xyzw
+    return KeyframeAction(action.position, np.array([y, -x, w, -z]), action.gripper_open)
+
+
 def rollout(policy: Policy, task_name: str, seed: int, instructions: Sequence[str],
             attempts: int = 2) -> dict[str, Any]:
     """Run ``instructions`` in order on (task, seed); returns success, steps and failures."""
@@ -95,8 +102,13 @@ def rollout(policy: Policy, task_name: str, seed: int, instructions: Sequence[st
         for instr in instructions:
             if success:
                 break
-            for _ in range(attempts):
+            for attempt in range(attempts):
                 action = policy.act(live_observation(scene, task), instr)
+                if attempt % 2 == 1:
+                    # The parallel gripper is symmetric under a half turn about its approach
+                    # axis; when a motion fails, try the equivalent orientation (as a motion
+                    # planner would), since joint limits often allow only one of the two.
+                    action = half_turn(action)
                 res = ctrl.move(action.position, action.quaternion, action.gripper_open, task.graspable())
                 steps += 1
                 success = bool(task.success())
