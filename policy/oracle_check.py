@@ -12,8 +12,10 @@ planners are measured against.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import logging
+import multiprocessing
 import os
 import pickle
 import sys
@@ -48,9 +50,22 @@ def _sim():
     return Controller, build_task, run_expert, task_names
 
 
+def envs_fingerprint() -> str:
+    """Hash of the simulator suite's source (tasks, experts, controller): keys the demo cache."""
+    import envs
+
+    root = Path(envs.__file__).resolve().parent
+    h = hashlib.sha256()
+    for f in sorted(root.rglob("*.py")):
+        h.update(str(f.relative_to(root)).encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def expert_episode(task: str, seed: int, cache_dir: Path | None) -> Episode:
-    """The expert demonstration (no images) with its privileged record in ``meta``; cached."""
-    path = None if cache_dir is None else cache_dir / "expert" / f"{task}_{seed}.pkl"
+    """The expert demonstration (no images) with its privileged record in ``meta``; cached
+    under the suite's source hash, so demos from an older version of a task are never reused."""
+    path = None if cache_dir is None else cache_dir / "expert" / envs_fingerprint() / f"{task}_{seed}.pkl"
     if path is not None and path.is_file():
         with open(path, "rb") as f:
             return pickle.load(f)
@@ -132,6 +147,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     all_tasks = task_names()
     eval_tasks = args.tasks or task_names(pretraining=False)
     t0 = time.perf_counter()
+    jobs = [(t, TRAIN_SEED0 + s) for t in all_tasks for s in range(args.train_episodes)]
+    jobs += [(t, EVAL_SEED0 + s) for t in eval_tasks for s in range(args.episodes)]
+    _generate(jobs, cache, args.workers)
     train_eps = [expert_episode(t, TRAIN_SEED0 + s, cache) for t in all_tasks
                  for s in range(args.train_episodes)]
     gen_s = time.perf_counter() - t0
@@ -174,6 +192,24 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return result
 
 
+def _cached_expert(job: tuple[str, int, str]) -> None:
+    expert_episode(job[0], job[1], Path(job[2]))
+
+
+def _generate(jobs: list[tuple[str, int]], cache: Path, workers: int) -> None:
+    """Record (and cache) the expert demos of ``jobs`` with ``workers`` processes."""
+    todo = [(t, s, str(cache)) for t, s in jobs]
+    if workers <= 1:
+        for job in todo:
+            _cached_expert(job)
+        return
+    # fork: workers inherit the already imported suite, so they run the code that was hashed.
+    with multiprocessing.get_context("fork").Pool(workers) as pool:
+        for i, _ in enumerate(pool.imap_unordered(_cached_expert, todo, chunksize=4)):
+            if (i + 1) % 50 == 0:
+                log.info("expert demos ready: %d/%d", i + 1, len(todo))
+
+
 def format_table(result: dict[str, Any]) -> str:
     """Markdown table of per-task oracle success."""
     lines = ["| task | oracle success | expert success | episodes |", "|---|---|---|---|"]
@@ -192,6 +228,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--epochs", type=int, default=TrainConfig.epochs)
     p.add_argument("--max-train-seconds", type=float, default=TrainConfig.max_seconds)
     p.add_argument("--attempts", type=int, default=2, help="tries per instruction after a failed motion")
+    p.add_argument("--workers", type=int, default=2, help="processes recording expert demos")
     p.add_argument("--out", default="outputs/oracle_check")
     p.add_argument("--cache", default=".cache/policy")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
