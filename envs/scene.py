@@ -37,8 +37,8 @@ PHYSICS_HZ = 240
 FINGER_OPEN = 0.04
 TABLE_TOP = 0.0
 # The fixed front camera looks down at the workspace from the far side of the table.
-FRONT_EYE = (1.1, 0.0, 0.85)
-FRONT_TARGET = (0.42, 0.0, 0.02)
+FRONT_EYE = (0.95, 0.0, 0.75)
+FRONT_TARGET = (0.45, 0.0, 0.05)
 ROBOT_BASE = (-0.05, 0.0, TABLE_TOP)
 
 COLORS: dict[str, tuple[float, float, float, float]] = {
@@ -83,7 +83,7 @@ class CameraSpec:
 
     width: int = 128
     height: int = 128
-    fov: float = 55.0
+    fov: float = 50.0
     near: float = 0.01
     far: float = 4.0
 
