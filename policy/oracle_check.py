@@ -12,6 +12,7 @@ planners are measured against.
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import json
 import logging
@@ -50,8 +51,12 @@ def _sim():
     return Controller, build_task, run_expert, task_names
 
 
+@functools.cache
 def envs_fingerprint() -> str:
-    """Hash of the simulator suite's source (tasks, experts, controller): keys the demo cache."""
+    """Hash of the simulator suite's source (tasks, experts, controller): keys the demo cache.
+
+    Computed once per process (before any worker forks), so one run never mixes two versions.
+    """
     import envs
 
     root = Path(envs.__file__).resolve().parent
@@ -140,6 +145,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     """Train (or load) the policy, roll out the oracle, write ``oracle.json``; return it."""
     torch.set_num_threads(1)
     _, _, _, task_names = _sim()
+    log.info("suite source hash %s", envs_fingerprint())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cache = Path(args.cache)
