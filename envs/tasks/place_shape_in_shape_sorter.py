@@ -81,7 +81,9 @@ class PlaceShapeInShapeSorter(Task):
         if shape == "cuboid":  # fingers across the short side
             yaw = grasp_yaw(obj_yaw + np.pi / 2, np.pi)
         else:
-            yaw = grasp_yaw(obj_yaw if shape == "cube" else 0.0, np.pi / 2)
+            # Fingers (and the hand's long side) along y, away from the sorter behind the shapes.
+            base = obj_yaw if shape == "cube" else 0.0
+            yaw = base + np.pi / 2 * np.round((-np.pi / 2 - base) / (np.pi / 2))
         yield from self.pick(shape, pos, yaw, float(pos[2]) + 0.005, lift_z=0.28)
         sorter, _ = self.pose("shape_sorter")
         # Let go with the shape's bottom just inside the hole: the closed fingers are wider
