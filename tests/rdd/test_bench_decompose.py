@@ -1,0 +1,30 @@
+"""The decomposition benchmark runs end to end at a tiny size and writes its table and figure."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_decompose.py"
+
+
+def test_benchmark_tiny_run(tmp_path):
+    spec = importlib.util.spec_from_file_location("bench_decompose", BENCH)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path / "bench"
+    res = bench.main(["--frames", "60", "--max-len", "20", "--entries", "300", "--embed-dim", "32",
+                      "--backends", "exact,exact-dense,faiss-flat", "--repeat", "1", "--naive-limit", "10",
+                      "--scaling", "40,60", "--out", str(out)])
+    b = res["backends"]
+    # pruned exact, dense exact and faiss flat are all exact searches: the same optimum
+    assert b["exact"]["objective"] == pytest.approx(b["exact-dense"]["objective"], abs=1e-4)
+    assert b["exact"]["objective"] == pytest.approx(b["faiss-flat"]["objective"], abs=1e-3)
+    assert res["naive_annoy_loop"]["extrapolated"] and res["naive_annoy_loop"]["queries"] > 0
+    assert {r["T"] for r in res["scaling"]} == {40, 60}
+    for name in ("results.json", "scaling.csv", "scaling.md", "scaling.png"):
+        assert (out / name).is_file(), name
+    assert json.loads((out / "results.json").read_text())["candidates"] == res["candidates"]
