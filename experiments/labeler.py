@@ -66,7 +66,8 @@ RISE = 0.04  # an upward move of at least this counts as lifting / moving up
 PUSHED = 0.03  # a free object displaced this far was pushed
 APPROACH = 0.03  # the hand got this much nearer an object: a reach
 REACH_RADIUS = 0.25  # a reach ends at most this far from its object
-MOVING = 0.008  # hand speed (m per frame) above which the interval ended mid-motion
+MOVING = 0.004  # hand speed (m per frame) below which the hand counts as stopped
+BRAKING = 0.6  # ... and, above it, the share of the interval's peak speed that means "not braking"
 SUPPORT_MARGIN = 0.02  # horizontal slack when deciding that Y is under X
 PUSH_REACH = 0.08  # a pushed object came this close to the hand
 DRAWER_REACH = 0.3  # an object this near (horizontally) an open drawer's handle is over the drawer
@@ -150,13 +151,16 @@ class PrivilegedLabeler:
         if episode.ee_poses is None:
             raise ValueError(f"episode {episode.name!r} lacks ee_poses, which the labeler needs")
         hand = np.asarray(episode.ee_poses[sl, :3], dtype=np.float64)
-        # Speed at the interval's end, from the frame before it when the interval has one.
-        prev = np.asarray(episode.ee_poses[max(end - 2, 0), :3], dtype=np.float64)
-        speed = float(np.linalg.norm(hand[-1] - prev)) if end >= 2 else 0.0
+        # Hand speeds (m per frame) from the frame before the interval to its last frame.
+        track = np.asarray(episode.ee_poses[max(start - 1, 0):end, :3], dtype=np.float64)
+        speeds = np.linalg.norm(np.diff(track, axis=0), axis=1) if len(track) > 1 else np.zeros(1)
+        # Still moving at the end: fast, and not already braking (an arrival ends at a small
+        # fraction of the motion's peak speed; an interval cut mid-motion ends near its peak).
+        moving = bool(speeds[-1] >= MOVING and speeds[-1] >= BRAKING * speeds.max())
         if episode.gripper_open is None:
             raise ValueError(f"episode {episode.name!r} lacks gripper_open, which the labeler needs")
         gripper_open = bool(episode.gripper_open[end - 1] >= 0.5)
-        return _describe(scene, pos, held, arts, hand, speed, gripper_open)
+        return _describe(scene, pos, held, arts, hand, moving, gripper_open)
 
     def label_all(self, episode: Episode, segments: Sequence[Segment]) -> list[str]:
         """Labels of several intervals of one episode."""
@@ -164,7 +168,7 @@ class PrivilegedLabeler:
 
 
 def _describe(sc: _Scene, pos: np.ndarray, held: np.ndarray, arts: np.ndarray, hand: np.ndarray,
-              speed: float, gripper_open: bool) -> str:
+              moving: bool, gripper_open: bool) -> str:
     k = len(sc.labels)
     # 1. Articulations: the one that moved most (relative to its travel).
     if arts.shape[1]:
@@ -200,13 +204,13 @@ def _describe(sc: _Scene, pos: np.ndarray, held: np.ndarray, arts: np.ndarray, h
             return f"pick up the {sc.labels[x]}" if rise >= RISE else f"grasp the {sc.labels[x]}"
         y = _below(sc, pos[-1], x)
         # "Above Y" only when Y is a new place, not what X was lifted off.
-        if y is not None and y != _below(sc, pos[0], x) and speed < MOVING:
+        if y is not None and y != _below(sc, pos[0], x) and not moving:
             return f"move the {sc.labels[x]} above the {_dest_label(sc, x, y)}"
         horiz = np.linalg.norm(pos[-1, x, :2] - pos[0, x, :2])
         if rise >= RISE and horiz <= 0.5 * rise:
             return f"lift the {sc.labels[x]}"
         drawer = _open_drawer_at(sc, pos[-1], arts[-1], x)
-        if y is None and drawer is not None and speed < MOVING:
+        if y is None and drawer is not None and not moving:
             return f"move the {sc.labels[x]} above the {drawer}"
         others = [j for j in range(k) if j != x]
         if others:
@@ -224,14 +228,14 @@ def _describe(sc: _Scene, pos: np.ndarray, held: np.ndarray, arts: np.ndarray, h
             return f"push the {sc.labels[j]}"
     # 5. Hand motion only.
     delta = hand[-1] - hand[0]
-    if delta[2] >= RISE and np.linalg.norm(delta[:2]) <= 0.5 * delta[2] and speed < MOVING:
+    if delta[2] >= RISE and np.linalg.norm(delta[:2]) <= 0.5 * delta[2] and not moving:
         return "move the gripper up"
     if not k:
         return "move the gripper" if np.linalg.norm(delta) > APPROACH else "keep the gripper still"
     d_start = np.linalg.norm(pos[0] - hand[0], axis=1)
     d_end = np.linalg.norm(pos[-1] - hand[-1], axis=1)
     near = int(np.argmin(d_end))
-    if speed >= MOVING:
+    if moving:
         # Mid-motion: name the object the hand is heading for (best alignment with its motion).
         step = hand[-1] - hand[max(len(hand) - 2, 0)]
         to_obj = pos[-1] - hand[-1]
