@@ -60,3 +60,28 @@ def test_generate_rejects_bad_arguments(tmp_path):
         generate(["turn_tap"], "dev", 1, tmp_path, progress=False)
     with pytest.raises(ValueError, match="unknown tasks"):
         generate(["no_such_task"], "train", 1, tmp_path, progress=False)
+
+
+def test_failed_seeds_are_recorded_and_replaced(tmp_path, monkeypatch):
+    import json
+
+    import envs.generate as gen
+
+    calls = []
+
+    def fake(task, seed, split, out, image_size, render):
+        calls.append(seed)
+        if seed == 1:  # the expert "fails" on seed 1: recorded, then seed 2 replaces it
+            return seed, False, "timeout at waypoint 0"
+        (gen.episode_dir(out, split, task, seed)).mkdir(parents=True)
+        (gen.episode_dir(out, split, task, seed) / "episode.json").write_text("{}")
+        return seed, True, None
+
+    monkeypatch.setattr(gen, "generate_one", fake)
+    used = gen.generate(["turn_tap"], "train", 3, tmp_path, progress=False)
+    assert used == {"turn_tap": [0, 2, 3]}
+    failed = json.loads((tmp_path / "train" / "turn_tap" / "failed_seeds.json").read_text())
+    assert failed == {"1": "timeout at waypoint 0"}
+    calls.clear()
+    assert gen.generate(["turn_tap"], "train", 3, tmp_path, progress=False) == used
+    assert calls == []  # resumed: neither finished nor failed seeds are run again
