@@ -180,9 +180,11 @@ class KeyframeBCPolicy(Policy):
         )
         sel = KeyframeNet.select(pred)
         self.last_anchor = a.names[int(sel["anchor"][0])]
-        # The gripper is symmetric under a half turn about its approach axis: of the two
-        # equivalent orientations take the one nearer the hand's current one (no needless spin).
-        quat = gripper_equivalent(sel["quaternion"], torch.as_tensor(a.proprio[None, 3:7], dtype=torch.float32))
+        quat = sel["quaternion"]
+        if self.net.cfg.symmetric_gripper:
+            # Trained without preference between the two equivalent finger directions: take the
+            # one nearer the hand's current orientation (no needless spin).
+            quat = gripper_equivalent(quat, torch.as_tensor(a.proprio[None, 3:7], dtype=torch.float32))
         return KeyframeAction(
             position=sel["position"][0].numpy(),
             quaternion=quat[0].numpy(),

@@ -31,6 +31,10 @@ class NetConfig:
     rot_kappa: float = 20.0  # concentration of the orientation likelihood
     gripper_weight: float = 2.0
     match_scale: float = 20.0  # initial gain of the instruction-name cosine similarity
+    # Treat the two finger directions (a half turn about the approach axis) as one target. Off by
+    # default: the expert picks between them by reachability, which the net learns from the scene,
+    # and choosing the other one often runs the arm into joint limits or the cabinet.
+    symmetric_gripper: bool = False
 
     def to_dict(self) -> dict:
         """Plain dict (for checkpoints and cache keys)."""
@@ -181,11 +185,12 @@ class KeyframeNet(nn.Module):
         c = self.cfg
         sigma = c.pos_sigma if pos_sigma is None else pos_sigma
         d2 = ((pred["position"] - target_pos[:, None, :]) ** 2).sum(-1)
-        # Sign-invariant, and invariant to the parallel gripper's half turn about its approach axis
-        # (the expert's two finger directions grasp alike, so they are one target, not two modes).
-        flipped = quat_multiply(target_quat, HALF_TURN_Z.to(target_quat))
-        cos2 = torch.maximum((pred["quaternion"] * target_quat[:, None, :]).sum(-1) ** 2,
-                             (pred["quaternion"] * flipped[:, None, :]).sum(-1) ** 2)
+        # Sign-invariant; optionally also invariant to the parallel gripper's half turn about its
+        # approach axis (the two finger directions grasp alike).
+        cos2 = (pred["quaternion"] * target_quat[:, None, :]).sum(-1) ** 2
+        if c.symmetric_gripper:
+            flipped = quat_multiply(target_quat, HALF_TURN_Z.to(target_quat))
+            cos2 = torch.maximum(cos2, (pred["quaternion"] * flipped[:, None, :]).sum(-1) ** 2)
         comp = -d2 / (2 * sigma**2) + c.rot_kappa * (cos2 - 1.0)
         nll = -(torch.logsumexp(pred["log_weights"] + comp, dim=-1)).mean()
         grip = F.binary_cross_entropy_with_logits(pred["gripper_logit"], target_open)

@@ -189,7 +189,9 @@ def evaluate_network(net: KeyframeNet, data: KeyframeDataset, batch: int = 4096)
         sel = KeyframeNet.select(net.forward_indexed(*_inputs(t, idx)))
         tgt = t["target"][idx]
         pos_err.append((sel["position"] - tgt[:, :3]).norm(dim=-1))
-        q = gripper_equivalent(sel["quaternion"], tgt[:, 3:7])
+        q = sel["quaternion"]
+        if net.cfg.symmetric_gripper:
+            q = gripper_equivalent(q, tgt[:, 3:7])
         dot = (q * tgt[:, 3:7]).sum(-1).abs().clamp(max=1.0)
         rot_err.append(torch.rad2deg(2 * torch.acos(dot)))
         grip_ok.append(((sel["gripper_open"] >= 0.5).float() == (tgt[:, 7] >= 0.5).float()).float())
@@ -206,7 +208,7 @@ def cache_key(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainConfig)
     """Hash of everything that determines a trained network."""
     payload = json.dumps({"data": data.fingerprint(), "net": net_cfg.to_dict(),
                           "train": {k: v for k, v in asdict(train_cfg).items() if k != "threads"},
-                          "version": 3}, sort_keys=True)
+                          "version": 4}, sort_keys=True)
     return hashlib.sha256(payload.encode()).hexdigest()[:24]
 
 
