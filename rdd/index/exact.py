@@ -15,6 +15,7 @@ Where the bounds prune little (e.g. unstructured data) the dense path is taken.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -99,10 +100,18 @@ class ExactIndex(NearestIndex):
         ids[better] = idx[better] + offset
         best_id[rows] = ids
 
-    def _chunk_products(self, fv: np.ndarray, c: int, nc: int) -> dict:
+    def _chunk_products(self, fv: np.ndarray, c: int, nc: int, pool: ThreadPoolExecutor,
+                        workers: int) -> dict:
         """Begin/end dot products of every frame with database chunk ``[c, c + nc)`` and block bounds."""
-        sb = fv @ self._begin[c : c + nc].T  # (T, Nc): every frame as a begin
-        se = fv @ self._end[c : c + nc].T  # (T, Nc): every frame as an end
+        begin, end = self._begin[c : c + nc], self._end[c : c + nc]
+        sb = np.empty((fv.shape[0], begin.shape[0]), dtype=np.float32)  # every frame as a begin
+        se = np.empty_like(sb)  # every frame as an end
+        # Rows split over our own threads (BLAS held to one thread each, see search_intervals).
+        rows = [r for r in np.array_split(np.arange(fv.shape[0]), workers) if r.size]
+        futures = [pool.submit(np.matmul, fv[r[0] : r[-1] + 1], m.T, out=o[r[0] : r[-1] + 1])
+                   for r in rows for m, o in ((begin, sb), (end, se))]
+        for f in futures:
+            f.result()
         chunk: dict = {"sb": sb, "se": se, "blocks": None}
         if self._offsets is None:
             return chunk
@@ -206,9 +215,9 @@ class ExactIndex(NearestIndex):
                 self._update(out, c, best, best_id, rows)
                 searched[worker] += out.size
 
-        with ThreadPoolExecutor(max_workers=len(parts)) as pool:
+        with ThreadPoolExecutor(max_workers=len(parts)) as pool, _one_blas_thread():
             for c in range(0, self.num_entries, nc):
-                chunk = self._chunk_products(fv, c, nc)
+                chunk = self._chunk_products(fv, c, nc, pool, len(parts))
                 futures = [pool.submit(run, w, p, b, c, chunk)
                            for w, (p, b) in enumerate(zip(parts, bufs, strict=True))]
                 for f in futures:
@@ -225,6 +234,19 @@ class ExactIndex(NearestIndex):
 def build(**options) -> ExactIndex:
     """The exact backend with ``options`` (memory_mb, threads, prune, block_size, seed)."""
     return ExactIndex(**options)
+
+
+def _one_blas_thread():
+    """Hold BLAS to one thread while our own threads split the work.
+
+    A multi-threaded BLAS inside each of our threads oversubscribes the cores, and OpenBLAS's
+    spinning workers cost far more on a busy machine. Without threadpoolctl nothing is changed.
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _block_columns(chunk: dict, mask: np.ndarray) -> np.ndarray:
