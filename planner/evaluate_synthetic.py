@@ -16,7 +16,7 @@ from pathlib import Path
 
 import torch
 
-from planner.config import PlannerConfig
+from planner.config import PlannerConfig, TrainSettings
 from planner.planner import Planner
 from planner.synthetic import EVAL_TASKS, PRETRAIN_TASKS, make_episodes
 from planner.train import finetune_lora, pretrain_base, training_examples
@@ -37,8 +37,8 @@ def run(cfg: PlannerConfig, cache_dir: Path, pretrain_episodes: int, demos: int,
     adapter = finetune_lora(cfg, base, training_examples(demo, cfg.finetune, cfg.view), cache_dir,
                             progress=progress)
     t2 = time.process_time()
-    test_ex = training_examples(test, cfg.finetune.__class__(), cfg.view)
-    pre_ex = training_examples(pre_test, cfg.finetune.__class__(), cfg.view)
+    test_ex = training_examples(test, TrainSettings(), cfg.view)
+    pre_ex = training_examples(pre_test, TrainSettings(), cfg.view)
     base_planner = Planner(cfg, base)
     tuned = Planner(cfg, base, adapter)
     out = {

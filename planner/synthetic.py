@@ -1,8 +1,9 @@
 """A rendered instruction-following world for testing and measuring the planner without the simulator.
 
 Each task is a scripted sequence of sub-task instructions whose wording depends on the goal (colours),
-on what only the image shows (where a block or button sits, which side the drawer is on, whether the
-drawer is already open) and on how far the episode has progressed. Episodes come out as
+on what only the image shows (which side the drawer is on, whether it is already open, whether the
+first button was already pressed; optionally where a block or button sits) and on how far the
+episode has progressed. Episodes come out as
 ``rdd.data.episode.Episode`` with expert ``segments`` and ``instructions``, so the planner's data code
 reads them exactly like demonstrations from the pybullet suite.
 
@@ -27,10 +28,11 @@ COLOURS: dict[str, tuple[int, int, int]] = {
     "yellow": (230, 210, 40),
 }
 SLOTS = ("left", "middle", "right")
-PRETRAIN_TASKS = ("pick_and_lift", "push_button", "open_drawer", "put_in_bin")
+PRETRAIN_TASKS = ("pick_and_lift", "push_button", "open_drawer", "put_in_bin", "slide_to_target")
 EVAL_TASKS = ("stack_blocks", "put_in_drawer", "push_buttons")
 
 _BG = (235, 225, 205)
+_GREY = (125, 125, 125)
 _SLOT_X = {"left": 12, "middle": 32, "right": 52}  # centre x of each table slot (64 px canvas)
 _BLOCK_Y = 48
 _BUTTON_Y = 30
@@ -50,6 +52,7 @@ class _State:
     drawer_side: str | None = None
     drawer_open: bool = False
     show_bin: bool = False
+    pads: dict[str, str] = field(default_factory=dict)  # colour -> slot of a flat target pad
     gripper: tuple[float, float] = _HOME
     closed: bool = False
     held: str | None = None
@@ -57,7 +60,13 @@ class _State:
     def copy(self) -> _State:
         """A deep enough copy for keyframe snapshots."""
         return _State(dict(self.blocks), dict(self.buttons), set(self.pressed), self.drawer_side,
-                      self.drawer_open, self.show_bin, self.gripper, self.closed, self.held)
+                      self.drawer_open, self.show_bin, dict(self.pads), self.gripper, self.closed,
+                      self.held)
+
+
+def _rgb(name: str) -> tuple[int, int, int]:
+    """Colour of an object named by its colour; unnamed distractors ("grey:<k>") are grey."""
+    return COLOURS.get(name, _GREY)
 
 
 def render(state: _State, size: int = 64) -> np.ndarray:
@@ -78,13 +87,17 @@ def render(state: _State, size: int = 64) -> np.ndarray:
             d.rectangle([x - 3, y + 12, x + 3, y + 14], fill=(40, 40, 40))
         else:
             d.rectangle([x - 3, y + 6, x + 3, y + 8], fill=(40, 40, 40))
-    for colour, slot in state.buttons.items():
+    for name, slot in state.buttons.items():
         x = _SLOT_X[slot]
-        r = 4 if colour in state.pressed else 6
-        d.ellipse([x - r, _BUTTON_Y - r, x + r, _BUTTON_Y + r], fill=COLOURS[colour],
+        d.ellipse([x - 6, _BUTTON_Y - 6, x + 6, _BUTTON_Y + 6], fill=_rgb(name),
                   outline=(30, 30, 30))
-    for colour, (x, y) in state.blocks.items():
-        d.rectangle([x - 5, y - 5, x + 5, y + 5], fill=COLOURS[colour])
+        if name in state.pressed:  # a pressed button shows its dark, sunken centre
+            d.ellipse([x - 3, _BUTTON_Y - 3, x + 3, _BUTTON_Y + 3], fill=(20, 20, 20))
+    for name, slot in state.pads.items():
+        x = _SLOT_X[slot]
+        d.rectangle([x - 8, _BLOCK_Y + 5, x + 8, _BLOCK_Y + 7], fill=_rgb(name))
+    for name, (x, y) in state.blocks.items():
+        d.rectangle([x - 5, y - 5, x + 5, y + 5], fill=_rgb(name))
     gx, gy = state.gripper
     gap = 3 if state.closed else 6
     d.rectangle([gx - gap - 2, gy - 12, gx - gap, gy - 5], fill=(60, 60, 60))
@@ -138,9 +151,10 @@ class _Script:
         self.instructions.append(instruction)
 
 
-def _pick_steps(sc: _Script, colour: str, *, lift: bool = True) -> None:
+def _pick_steps(sc: _Script, colour: str, *, lift: bool = True, where: bool = False) -> None:
     x, y = sc.state.blocks[colour]
-    sc.step(f"move to the {colour} block {_where(_slot_of(x))}", (x, y))
+    place = f" {_where(_slot_of(x))}" if where else ""
+    sc.step(f"move to the {colour} block{place}", (x, y))
 
     def grab(s: _State) -> None:
         s.held = colour
@@ -159,16 +173,27 @@ def _release(colour: str, dest: tuple[float, float] | None = None):
     return eff
 
 
-def _make_episode(task: str, rng: np.random.Generator, size: int) -> tuple[str, _Script]:
+def _make_episode(task: str, rng: np.random.Generator, size: int,
+                  where: bool) -> tuple[str, _Script]:
     cols = list(rng.permutation(list(COLOURS)))
     slots = list(rng.permutation(list(SLOTS)))
     st = _State()
+    # Tasks about one coloured object show it among grey distractors (with ``where`` their
+    # instructions say where it stands); tasks about two coloured objects name them by colour only.
+    named = 2 if task in ("stack_blocks", "push_buttons", "slide_to_target") else 1
+    n_objects = 2 if task == "put_in_drawer" else 3
+    names = cols[:named] + [f"grey:{k}" for k in range(n_objects - named)]
+    placed = dict(zip(names, slots[:n_objects], strict=True))
     if task in ("pick_and_lift", "put_in_bin", "stack_blocks", "put_in_drawer"):
-        n_blocks = 3 if task != "put_in_drawer" else 2
-        st.blocks = {c: (_SLOT_X[s], _BLOCK_Y) for c, s in zip(cols[:n_blocks], slots[:n_blocks],
-                                                               strict=True)}
+        st.blocks = {n: (_SLOT_X[s], _BLOCK_Y) for n, s in placed.items()}
+    if task == "slide_to_target":  # the second colour names a flat target pad, not a block
+        pad = names.pop(1)
+        st.pads = {pad: placed.pop(pad)}
+        st.blocks = {n: (_SLOT_X[s], _BLOCK_Y) for n, s in placed.items()}
     if task in ("push_button", "push_buttons"):
-        st.buttons = dict(zip(cols[:3], slots, strict=True))
+        st.buttons = placed
+        if task == "push_buttons" and rng.random() < 0.4:
+            st.pressed.add(cols[0])  # the first button was already pressed: only the second is left
     if task in ("open_drawer", "put_in_drawer"):
         st.drawer_side = str(rng.choice(["left", "right"]))
         st.drawer_open = bool(task == "put_in_drawer" and rng.random() < 0.5)
@@ -179,16 +204,37 @@ def _make_episode(task: str, rng: np.random.Generator, size: int) -> tuple[str, 
     v = int(rng.integers(2))  # goal phrasing variation
     if task == "pick_and_lift":
         goal = [f"pick up the {c1} block", f"lift the {c1} block off the table"][v]
-        _pick_steps(sc, c1)
+        _pick_steps(sc, c1, where=where)
     elif task == "put_in_bin":
         goal = [f"put the {c1} block in the bin", f"throw the {c1} block into the bin"][v]
-        _pick_steps(sc, c1)
+        if rng.random() < 0.35:
+            # the episode starts with the block already in the closed gripper: the image alone
+            # says that moving to it and grasping it are done
+            st.gripper, st.closed, st.held = st.blocks[c1], True, c1
+            sc.frames = [render(st, size)]
+            x, y = st.blocks[c1]
+            sc.step(f"lift the {c1} block", (x, y - 16))
+        else:
+            _pick_steps(sc, c1, where=where)
         sc.step(f"move the {c1} block above the bin", (_BIN_XY[0], _BIN_XY[1] + 4))
         sc.step(f"release the {c1} block", close=False, effect=_release(c1, _BIN_XY))
+    elif task == "slide_to_target":
+        goal = [f"slide the {c1} block to the {c2} target",
+                f"push the {c1} block onto the {c2} target"][v]
+        x, y = st.blocks[c1]
+        place = f" {_where(_slot_of(x))}" if where else ""
+        sc.step(f"move to the {c1} block{place}", (x, y))
+        tx = _SLOT_X[st.pads[c2]]
+
+        def slide(s: _State) -> None:
+            s.blocks[c1] = (tx, _BLOCK_Y)
+
+        sc.step(f"push the {c1} block to the {c2} target", (tx, y), effect=slide)
+        sc.step("move back up", _HOME)
     elif task == "stack_blocks":
         goal = [f"stack the {c1} block on the {c2} block",
                 f"place the {c1} block on top of the {c2} block"][v]
-        _pick_steps(sc, c1)
+        _pick_steps(sc, c1, where=False)
         x2, y2 = st.blocks[c2]
         sc.step(f"move the {c1} block above the {c2} block", (x2, y2 - 12))
         sc.step(f"release the {c1} block", close=False, effect=_release(c1, (x2, y2 - 10)))
@@ -198,8 +244,11 @@ def _make_episode(task: str, rng: np.random.Generator, size: int) -> tuple[str, 
                 else [f"push the {c1} button then the {c2} button",
                       f"press the {c1} button and then the {c2} button"][v])
         for c in seq:
+            if c in st.pressed:
+                continue
             x = _SLOT_X[st.buttons[c]]
-            sc.step(f"move above the {c} button {_where(st.buttons[c])}", (x, _BUTTON_Y - 8))
+            place = f" {_where(st.buttons[c])}" if where and task == "push_button" else ""
+            sc.step(f"move above the {c} button{place}", (x, _BUTTON_Y - 8))
 
             def press(s: _State, c: str = c) -> None:
                 s.pressed.add(c)
@@ -225,7 +274,7 @@ def _make_episode(task: str, rng: np.random.Generator, size: int) -> tuple[str, 
             if not st.drawer_open:
                 sc.step(f"move to the drawer handle on the {side}", (hx, hy - 6))
                 sc.step("pull the drawer open", (hx, hy), effect=pull)
-            _pick_steps(sc, c1, lift=False)
+            _pick_steps(sc, c1, lift=False, where=where)
             sc.step(f"move the {c1} block above the drawer", (hx, hy))
             sc.step(f"release the {c1} block", close=False, effect=_release(c1, (hx, hy - 4)))
     else:
@@ -233,10 +282,16 @@ def _make_episode(task: str, rng: np.random.Generator, size: int) -> tuple[str, 
     return goal, sc
 
 
-def make_episode(task: str, seed: int, *, image_size: int = 64) -> Episode:
-    """One expert demonstration of ``task`` (seeded), with expert segments and instructions."""
+def make_episode(task: str, seed: int, *, image_size: int = 64, where: bool = False) -> Episode:
+    """One expert demonstration of ``task`` (seeded), with expert segments and instructions.
+
+    ``where``: instructions about a single coloured block or button also say where it stands
+    ("on the left"); off by default because a tiny planner trained on this CPU budget does not
+    learn to localise small objects (measured: chance level), while large objects (the drawer's
+    side, whether it is open, which button is pressed) it reads reliably.
+    """
     rng = np.random.default_rng([seed, sum(map(ord, task))])
-    goal, sc = _make_episode(task, rng, image_size)
+    goal, sc = _make_episode(task, rng, image_size, where)
     frames = np.stack(sc.frames)
     bounds = [0] + [k + 1 for k in sc.keyframes]
     segments = [(bounds[i], bounds[i + 1]) for i in range(len(sc.keyframes))]
@@ -245,6 +300,7 @@ def make_episode(task: str, seed: int, *, image_size: int = 64) -> Episode:
                    meta={"source": "planner.synthetic", "seed": seed})
 
 
-def make_episodes(tasks: Sequence[str], seeds: Sequence[int], *, image_size: int = 64) -> list[Episode]:
+def make_episodes(tasks: Sequence[str], seeds: Sequence[int], *, image_size: int = 64,
+                  where: bool = False) -> list[Episode]:
     """Demonstrations for every (task, seed) pair."""
-    return [make_episode(t, s, image_size=image_size) for t in tasks for s in seeds]
+    return [make_episode(t, s, image_size=image_size, where=where) for t in tasks for s in seeds]

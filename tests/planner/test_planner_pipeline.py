@@ -24,7 +24,7 @@ def _cfg(kind: str) -> PlannerConfig:
         lora=dict(r=8, alpha=16, dropout=0.0))
 
 
-@pytest.mark.parametrize("kind", ["tiny_llava"])
+@pytest.mark.parametrize("kind", ["tiny_llava", pytest.param("tiny_llava_next", marks=pytest.mark.slow)])
 def test_pretrain_finetune_save_load_infer(tmp_path, kind, monkeypatch):
     torch.set_num_threads(1)
     cfg = _cfg(kind)
