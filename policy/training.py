@@ -67,7 +67,7 @@ class KeyframeDataset:
 class TrainConfig:
     """Optimisation settings."""
 
-    epochs: int = 40
+    epochs: int = 100
     min_steps: int = 1500  # small datasets run more epochs so the optimiser takes at least this many steps
     batch_size: int = 256
     lr: float = 2e-3
