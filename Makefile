@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 # Constraints apply to build environments too, so no dependency can move torch off the CPU wheel.
 export PIP_CONSTRAINT := $(CURDIR)/constraints.txt
 
-.PHONY: install run test lint bench clean
+.PHONY: install run test test-slow lint bench clean
 
 install: $(STAMP)
 
@@ -21,7 +21,11 @@ run: $(STAMP)
 	$(PY) -m rdd demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -m "not slow"
+
+# Long tests (smoke multirun, full-size checkpoints); CI runs them after `make test`.
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -m slow
 
 lint: $(STAMP)
 	$(PY) -m ruff check .
