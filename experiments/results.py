@@ -88,7 +88,7 @@ class RunRecord:
         return str(self.data.get("_label") or self.data.get("choices", {}).get("decomposer", "run"))
 
 
-IGNORED_KEYS = ("seed", "paths.", "wandb.", "hydra.", "print_table", "threads")
+IGNORED_KEYS = ("seed", "experiment", "paths.", "wandb.", "hydra.", "print_table", "threads")
 
 
 def _parse_overrides(overrides: Iterable[str]) -> dict[str, str]:
