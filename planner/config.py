@@ -51,6 +51,10 @@ class TrainSettings:
     max_grad_norm: float = 1.0
     seed: int = 0
     include_inner_frames: bool = False  # also train on frames inside segments
+    # also train on each example this many times with a uniform grey image: where goal and previous
+    # instruction decide the answer the model must learn it from the text (a few demos otherwise
+    # let it recognise the demo by its picture and recall that demo's object words)
+    blank_image_copies: int = 0
 
     def __post_init__(self) -> None:
         if self.schedule not in SCHEDULES:
@@ -59,6 +63,15 @@ class TrainSettings:
             raise ValueError(f"planner warmup_ratio must be in [0, 1), got {self.warmup_ratio}")
         if self.epochs < 1 or self.batch_size < 1 or self.grad_accum < 1:
             raise ValueError("planner epochs, batch_size and grad_accum must be >= 1")
+        if self.blank_image_copies < 0:
+            raise ValueError(f"planner blank_image_copies must be >= 0, got {self.blank_image_copies}")
+
+    def key_dict(self) -> dict[str, Any]:
+        """The settings as a cache key (options at their off value left out, so older keys hold)."""
+        d = asdict(self)
+        if not d["blank_image_copies"]:
+            d.pop("blank_image_copies")
+        return d
 
 
 @dataclass
@@ -72,10 +85,18 @@ class LoraSettings:
     # so the vision tower's identically named q/k/v projections stay frozen
     target_modules: str = r".*language_model.*\.(q_proj|k_proj|v_proj|o_proj)"
     projector: str = "train"  # "train": fully trained copy (modules_to_save); "lora"; "frozen"
+    # further modules trained in full and saved with the adapter (peft modules_to_save), e.g.
+    # ["lm_head"]: a tiny base never produced the evaluation tasks' words, so their output rows
+    # are untrained and a low-rank update of the attention alone hardly reaches them
+    train_modules: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if self.projector not in ("train", "lora", "frozen"):
             raise ValueError(f"planner lora.projector {self.projector!r}: use train, lora or frozen")
+        self.train_modules = [str(m) for m in _plain(self.train_modules)]
+        bad = [m for m in self.train_modules if "vision" in m]
+        if bad:
+            raise ValueError(f"planner lora.train_modules {bad}: the vision tower stays frozen")
 
 
 @dataclass
@@ -132,6 +153,7 @@ class PlannerConfig:
         d = self.to_dict()
         for k in ("finetune", "lora", "max_new_tokens"):
             d.pop(k)
+        d["pretrain"] = self.pretrain.key_dict()
         return d
 
 

@@ -16,8 +16,10 @@ import shutil
 import tempfile
 import time
 from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from planner.config import PlannerConfig, TrainSettings, digest
@@ -71,6 +73,10 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
     if not examples:
         raise ValueError(f"{desc}: no training examples")
     set_seed(settings.seed)
+    examples = list(examples)
+    if settings.blank_image_copies:
+        examples += [replace(ex, image=np.full_like(ex.image, 127))
+                     for ex in examples for _ in range(settings.blank_image_copies)]
     accelerator = Accelerator(cpu=not torch.cuda.is_available(),
                               gradient_accumulation_steps=settings.grad_accum)
     encoded = [encode_example(processor, ex) for ex in examples]
@@ -172,13 +178,13 @@ def _lora_config(cfg: PlannerConfig):
     from peft import LoraConfig
 
     target = cfg.lora.target_modules
-    modules_to_save = None
+    modules_to_save = list(cfg.lora.train_modules)
     if cfg.lora.projector == "lora":
         target = f"({target})|(.*multi_modal_projector\\.linear_[12])"
     elif cfg.lora.projector == "train":
-        modules_to_save = ["multi_modal_projector"]
+        modules_to_save.append("multi_modal_projector")
     return LoraConfig(r=cfg.lora.r, lora_alpha=cfg.lora.alpha, lora_dropout=cfg.lora.dropout,
-                      target_modules=target, modules_to_save=modules_to_save, bias="none")
+                      target_modules=target, modules_to_save=modules_to_save or None, bias="none")
 
 
 def _base_identity(base_dir: Path) -> str:
@@ -197,8 +203,9 @@ def finetune_lora(cfg: PlannerConfig, base_dir: str | Path, examples: Sequence[P
     settings = cfg.finetune
     if seed is not None:
         settings = TrainSettings(**{**settings.__dict__, "seed": int(seed)})
-    key = digest({"base": _base_identity(base_dir), "lora": cfg.lora.__dict__,
-                  "finetune": settings.__dict__, "data": examples_fingerprint(examples)})
+    lora = {k: v for k, v in cfg.lora.__dict__.items() if k != "train_modules" or v}  # old keys stay
+    key = digest({"base": _base_identity(base_dir), "lora": lora,
+                  "finetune": settings.key_dict(), "data": examples_fingerprint(examples)})
     final = Path(cache_dir) / "lora" / f"{cfg.kind}-{key}"
     if (final / CONFIG_FILE).is_file():
         return final
