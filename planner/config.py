@@ -51,10 +51,6 @@ class TrainSettings:
     max_grad_norm: float = 1.0
     seed: int = 0
     include_inner_frames: bool = False  # also train on frames inside segments
-    # also train on each example this many times with a uniform grey image: where goal and previous
-    # instruction decide the answer the model must learn it from the text (a few demos otherwise
-    # let it recognise the demo by its picture and recall that demo's object words)
-    blank_image_copies: int = 0
 
     def __post_init__(self) -> None:
         if self.schedule not in SCHEDULES:
@@ -63,15 +59,6 @@ class TrainSettings:
             raise ValueError(f"planner warmup_ratio must be in [0, 1), got {self.warmup_ratio}")
         if self.epochs < 1 or self.batch_size < 1 or self.grad_accum < 1:
             raise ValueError("planner epochs, batch_size and grad_accum must be >= 1")
-        if self.blank_image_copies < 0:
-            raise ValueError(f"planner blank_image_copies must be >= 0, got {self.blank_image_copies}")
-
-    def key_dict(self) -> dict[str, Any]:
-        """The settings as a cache key (options at their off value left out, so older keys hold)."""
-        d = asdict(self)
-        if not d["blank_image_copies"]:
-            d.pop("blank_image_copies")
-        return d
 
 
 @dataclass
@@ -153,7 +140,6 @@ class PlannerConfig:
         d = self.to_dict()
         for k in ("finetune", "lora", "max_new_tokens"):
             d.pop(k)
-        d["pretrain"] = self.pretrain.key_dict()
         return d
 
 

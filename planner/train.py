@@ -16,10 +16,8 @@ import shutil
 import tempfile
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from planner.config import PlannerConfig, TrainSettings, digest
@@ -73,10 +71,6 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
     if not examples:
         raise ValueError(f"{desc}: no training examples")
     set_seed(settings.seed)
-    examples = list(examples)
-    if settings.blank_image_copies:
-        examples += [replace(ex, image=np.full_like(ex.image, 127))
-                     for ex in examples for _ in range(settings.blank_image_copies)]
     accelerator = Accelerator(cpu=not torch.cuda.is_available(),
                               gradient_accumulation_steps=settings.grad_accum)
     encoded = [encode_example(processor, ex) for ex in examples]
@@ -205,7 +199,7 @@ def finetune_lora(cfg: PlannerConfig, base_dir: str | Path, examples: Sequence[P
         settings = TrainSettings(**{**settings.__dict__, "seed": int(seed)})
     lora = {k: v for k, v in cfg.lora.__dict__.items() if k != "train_modules" or v}  # old keys stay
     key = digest({"base": _base_identity(base_dir), "lora": lora,
-                  "finetune": settings.key_dict(), "data": examples_fingerprint(examples)})
+                  "finetune": settings.__dict__, "data": examples_fingerprint(examples)})
     final = Path(cache_dir) / "lora" / f"{cfg.kind}-{key}"
     if (final / CONFIG_FILE).is_file():
         return final
