@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml constraints.txt
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(PY) -m rdd demo
+	$(PY) run.py
 
 test: $(STAMP)
 	$(PY) -m pytest -q -m "not slow"
