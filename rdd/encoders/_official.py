@@ -105,3 +105,22 @@ def build_official(
         num_threads=num_threads,
         checkpoint=None if path is None else str(path),
     )
+
+
+def official_builder(spec: OfficialSpec):
+    """The module-level ``build(**options)`` of an official encoder: ``build_official`` bound to ``spec``."""
+
+    def build(
+        checkpoint: str | None = None,
+        random_weights: bool = False,
+        seed: int = 0,
+        batch_size: int = 16,
+        num_threads: int | None = None,
+    ) -> TorchEncoder:
+        return build_official(
+            spec, checkpoint=checkpoint, random_weights=random_weights, seed=seed,
+            batch_size=batch_size, num_threads=num_threads,
+        )
+
+    build.__doc__ = f"The ``{spec.name}`` encoder from its official checkpoint (see the module docstring)."
+    return build

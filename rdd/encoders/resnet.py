@@ -11,8 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from rdd.encoders._common import TorchEncoder
-from rdd.encoders._official import OfficialSpec, build_official
+from rdd.encoders._official import OfficialSpec, official_builder
 from rdd.encoders._preprocess import IMAGENET_MEAN, IMAGENET_STD
 
 
@@ -43,15 +42,4 @@ SPEC = OfficialSpec(
 )
 
 
-def build(
-    checkpoint: str | None = None,
-    random_weights: bool = False,
-    seed: int = 0,
-    batch_size: int = 16,
-    num_threads: int | None = None,
-) -> TorchEncoder:
-    """The ``resnet`` encoder from its official checkpoint (see the module docstring)."""
-    return build_official(
-        SPEC, checkpoint=checkpoint, random_weights=random_weights, seed=seed,
-        batch_size=batch_size, num_threads=num_threads,
-    )
+build = official_builder(SPEC)
