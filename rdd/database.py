@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from rdd.data.episode import Episode
+from rdd.data.frames import update_with_file
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import DEFAULT_VIEWS, episode_frame_vectors
 from rdd.segments import Segment, validate_segments
@@ -36,11 +37,7 @@ class DatabaseError(ValueError):
 
 
 def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+    return update_with_file(hashlib.sha256(), path).hexdigest()
 
 
 def _atomic_write(path: Path, write) -> None:

@@ -10,6 +10,14 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 
+def update_with_file(h: hashlib._Hash, path: str | Path) -> hashlib._Hash:
+    """Feed the bytes of ``path`` into hash ``h`` in 1 MiB blocks (no whole-file read); return ``h``."""
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h
+
+
 @runtime_checkable
 class FrameSource(Protocol):
     """A sequence of uint8 RGB frames (H, W, 3) that loads on demand."""

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from rdd.data.episode import Episode
+from rdd.data.frames import update_with_file
 
 log = logging.getLogger(__name__)
 IMAGE_PREFIX = "observation.images."
@@ -111,10 +112,7 @@ class VideoFrames:
     def fingerprint(self) -> str:
         """SHA-256 of the video bytes, the episode's timestamps and the resize option."""
         if self._fingerprint is None:
-            h = hashlib.sha256()
-            with open(self.path, "rb") as fh:
-                for chunk in iter(lambda: fh.read(1 << 20), b""):
-                    h.update(chunk)
+            h = update_with_file(hashlib.sha256(), self.path)
             h.update(self.timestamps.tobytes())
             h.update(str(self.max_side).encode())
             self._fingerprint = h.hexdigest()

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from rdd.data.episode import Episode
+from rdd.data.frames import update_with_file
 
 FORMAT_NAME = "rdd-native-episode"
 FORMAT_VERSION = 1
@@ -81,11 +82,7 @@ class NpzFrames:
     def fingerprint(self) -> str:
         """SHA-256 of the file's bytes."""
         if self._fingerprint is None:
-            h = hashlib.sha256()
-            with open(self.path, "rb") as fh:
-                for chunk in iter(lambda: fh.read(1 << 20), b""):
-                    h.update(chunk)
-            self._fingerprint = h.hexdigest()
+            self._fingerprint = update_with_file(hashlib.sha256(), self.path).hexdigest()
         return self._fingerprint
 
 
