@@ -13,6 +13,7 @@ import re
 from pathlib import Path
 
 from rdd.encoders.base import Encoder
+from rdd.registry import build_from_module
 
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 
@@ -38,14 +39,7 @@ def load_encoder(name: str, **options) -> Encoder:
     module_path = Path(__file__).parent / f"{name}.py"
     if not module_path.is_file():
         raise ValueError(f"unknown encoder {name!r}; available: {available_encoders()}")
-    module = importlib.import_module(f"{__name__}.{name}")
-    build = getattr(module, "build", None)
-    if not callable(build):
-        raise ValueError(f"unknown encoder {name!r} (module has no build()); available: {available_encoders()}")
-    encoder = build(**options)
-    if not isinstance(encoder, Encoder):
-        raise TypeError(f"rdd.encoders.{name}.build returned {type(encoder).__name__}, not an Encoder")
-    return encoder
+    return build_from_module(__name__, name, Encoder, available_encoders(), options)
 
 
 __all__ = ["Encoder", "available_encoders", "load_encoder"]

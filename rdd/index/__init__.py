@@ -6,12 +6,12 @@ Each backend is one module exposing ``build(**options) -> NearestIndex`` plus on
 
 from __future__ import annotations
 
-import importlib
 import pkgutil
 import re
 from pathlib import Path
 
 from rdd.index.base import NearestIndex
+from rdd.registry import build_from_module
 
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 _NOT_BACKENDS = {"base"}
@@ -29,14 +29,7 @@ def load_index(name: str, **options) -> NearestIndex:
     """Build the (unfitted) backend ``name`` (module ``rdd.index.<name>``) with ``options``."""
     if not isinstance(name, str) or not _NAME_RE.match(name) or name not in available_indexes():
         raise ValueError(f"unknown index backend {name!r}; available: {available_indexes()}")
-    module = importlib.import_module(f"{__name__}.{name}")
-    build = getattr(module, "build", None)
-    if not callable(build):
-        raise ValueError(f"index module rdd.index.{name} has no build(); available: {available_indexes()}")
-    index = build(**options)
-    if not isinstance(index, NearestIndex):
-        raise TypeError(f"rdd.index.{name}.build returned {type(index).__name__}, not a NearestIndex")
-    return index
+    return build_from_module(__name__, name, NearestIndex, available_indexes(), options)
 
 
 __all__ = ["NearestIndex", "available_indexes", "load_index"]
