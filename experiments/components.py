@@ -223,13 +223,11 @@ def planner_base_spec(planner_cfg: DictConfig) -> dict[str, Any]:
     return {"model": cfg.model_dict()}
 
 
-def _examples(cfg, episodes, segments, instructions, inner: bool) -> list:
-    from planner.dataset import examples_from_episode
+def _examples(cfg, episodes, segments, instructions, settings) -> list:
+    from planner.train import training_examples
 
-    out = []
-    for ep, segs, ins in zip(episodes, segments, instructions, strict=True):
-        out += examples_from_episode(ep, segs, ins, view=cfg.view, include_inner_frames=inner)
-    return out
+    return training_examples(episodes, settings, cfg.view, list(zip(segments, instructions,
+                                                                    strict=True)))
 
 
 def pretrain_planner(planner_cfg: DictConfig, episodes, segments, instructions,
@@ -238,7 +236,7 @@ def pretrain_planner(planner_cfg: DictConfig, episodes, segments, instructions,
     from planner.train import pretrain_base
 
     cfg = planner_config(planner_cfg)
-    examples = _examples(cfg, episodes, segments, instructions, cfg.pretrain.include_inner_frames)
+    examples = _examples(cfg, episodes, segments, instructions, cfg.pretrain)
     path = pretrain_base(cfg, examples, out, extra_corpus=list(corpus), progress=False)
     write_json_atomic(out / PLANNER_FILE, {"base": _relative(path, out)})
 
@@ -249,7 +247,7 @@ def finetune_planner(planner_cfg: DictConfig, base_dir: Path, episodes, segments
     from planner.train import finetune_lora
 
     cfg = planner_config(planner_cfg)
-    examples = _examples(cfg, episodes, segments, instructions, cfg.finetune.include_inner_frames)
+    examples = _examples(cfg, episodes, segments, instructions, cfg.finetune)
     path = finetune_lora(cfg, _resolve(base_dir), examples, out, seed=seed, progress=False)
     write_json_atomic(out / PLANNER_FILE, {"adapter": _relative(path, out)})
 

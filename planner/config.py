@@ -51,6 +51,10 @@ class TrainSettings:
     max_grad_norm: float = 1.0
     seed: int = 0
     include_inner_frames: bool = False  # also train on frames inside segments
+    inner_frame_stride: int = 1  # with include_inner_frames: every k-th frame of each segment
+    # slot-renamed copies per example (planner.augment): teaches reading objects/colours/order
+    # from the goal instead of recalling them from a few demos; 0 = off
+    slot_swap_copies: int = 0
 
     def __post_init__(self) -> None:
         if self.schedule not in SCHEDULES:
@@ -59,6 +63,18 @@ class TrainSettings:
             raise ValueError(f"planner warmup_ratio must be in [0, 1), got {self.warmup_ratio}")
         if self.epochs < 1 or self.batch_size < 1 or self.grad_accum < 1:
             raise ValueError("planner epochs, batch_size and grad_accum must be >= 1")
+        if self.inner_frame_stride < 1:
+            raise ValueError(f"planner inner_frame_stride must be >= 1, got {self.inner_frame_stride}")
+        if self.slot_swap_copies < 0:
+            raise ValueError(f"planner slot_swap_copies must be >= 0, got {self.slot_swap_copies}")
+
+    def key_dict(self) -> dict[str, Any]:
+        """The settings as a cache key; options added later are left out at their 'off' value."""
+        d = asdict(self)
+        for k, off in (("slot_swap_copies", 0), ("inner_frame_stride", 1)):
+            if d[k] == off:
+                d.pop(k)
+        return d
 
 
 @dataclass
@@ -140,6 +156,7 @@ class PlannerConfig:
         d = self.to_dict()
         for k in ("finetune", "lora", "max_new_tokens"):
             d.pop(k)
+        d["pretrain"] = self.pretrain.key_dict()
         return d
 
 

@@ -29,8 +29,11 @@ class PlannerExample:
 
 def examples_from_episode(episode: Episode, segments: Sequence[Segment] | None = None,
                           instructions: Sequence[str] | None = None, view: str = "front",
-                          include_inner_frames: bool = False) -> list[PlannerExample]:
+                          include_inner_frames: bool = False,
+                          inner_frame_stride: int = 1) -> list[PlannerExample]:
     """One example per segment start (plus inner frames if asked), previous instruction None first.
+
+    Inner frames are every ``inner_frame_stride``-th frame of a segment, counted from its start.
 
     ``segments``/``instructions`` default to the episode's own (expert) annotation.
     """
@@ -42,11 +45,13 @@ def examples_from_episode(episode: Episode, segments: Sequence[Segment] | None =
         raise ValueError(f"episode {episode.name!r}: {len(segments)} segments but "
                          f"{len(instructions)} instructions")
     validate_segments(segments, episode.num_frames)
+    if inner_frame_stride < 1:
+        raise ValueError(f"inner_frame_stride must be >= 1, got {inner_frame_stride}")
     if not episode.goal.strip():
         raise ValueError(f"episode {episode.name!r}: empty goal; the planner prompt needs it")
     picks: list[tuple[int, int]] = []  # (frame, segment index)
     for i, (start, end) in enumerate(segments):
-        frames = range(start, end) if include_inner_frames else [start]
+        frames = range(start, end, inner_frame_stride) if include_inner_frames else [start]
         picks.extend((f, i) for f in frames)
     images = episode.frames(view, [f for f, _ in picks])
     out = []

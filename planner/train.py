@@ -20,6 +20,7 @@ from pathlib import Path
 
 import torch
 
+from planner.augment import slot_swap
 from planner.config import PlannerConfig, TrainSettings, digest
 from planner.dataset import (
     PlannerCollator,
@@ -71,6 +72,7 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
     if not examples:
         raise ValueError(f"{desc}: no training examples")
     set_seed(settings.seed)
+    examples = slot_swap(examples, settings.slot_swap_copies, settings.seed)
     accelerator = Accelerator(cpu=not torch.cuda.is_available(),
                               gradient_accumulation_steps=settings.grad_accum)
     encoded = [encode_example(processor, ex) for ex in examples]
@@ -126,7 +128,8 @@ def training_examples(episodes: Iterable, settings: TrainSettings, view: str = "
     for i, ep in enumerate(episodes):
         segs, instr = segmentations[i] if segmentations is not None else (None, None)
         out.extend(examples_from_episode(ep, segs, instr, view=view,
-                                         include_inner_frames=settings.include_inner_frames))
+                                         include_inner_frames=settings.include_inner_frames,
+                                         inner_frame_stride=settings.inner_frame_stride))
     return out
 
 
@@ -199,7 +202,7 @@ def finetune_lora(cfg: PlannerConfig, base_dir: str | Path, examples: Sequence[P
         settings = TrainSettings(**{**settings.__dict__, "seed": int(seed)})
     lora = {k: v for k, v in cfg.lora.__dict__.items() if k != "train_modules" or v}  # old keys stay
     key = digest({"base": _base_identity(base_dir), "lora": lora,
-                  "finetune": settings.__dict__, "data": examples_fingerprint(examples)})
+                  "finetune": settings.key_dict(), "data": examples_fingerprint(examples)})
     final = Path(cache_dir) / "lora" / f"{cfg.kind}-{key}"
     if (final / CONFIG_FILE).is_file():
         return final

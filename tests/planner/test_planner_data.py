@@ -44,6 +44,16 @@ def test_inner_frames_keep_their_segment_instruction():
     assert [e.previous_instruction for e in ex] == [None if s == 0 else names[s - 1] for s in seg_of]
 
 
+def test_inner_frame_stride_counts_from_each_segment_start():
+    ex = examples_from_episode(_episode(), include_inner_frames=True, inner_frame_stride=2)
+    # segments (0, 3), (3, 7), (7, 10): every 2nd frame of each, its start always included
+    assert [e.frame for e in ex] == [0, 2, 3, 5, 7, 9]
+    assert [e.target for e in ex] == ["move to the red block"] * 2 + ["grasp the red block"] * 2 + [
+        "lift it"] * 2
+    with pytest.raises(ValueError, match="inner_frame_stride"):
+        examples_from_episode(_episode(), include_inner_frames=True, inner_frame_stride=0)
+
+
 def test_decomposer_segmentation_overrides_expert_and_is_validated():
     ex = examples_from_episode(_episode(), [(0, 5), (5, 10)], ["a", "b"])
     assert [(e.frame, e.previous_instruction, e.target) for e in ex] == [(0, None, "a"), (5, "a", "b")]

@@ -1,0 +1,77 @@
+"""Slot-word swapping: which words are slots, and that renamed copies stay consistent."""
+
+import numpy as np
+import pytest
+
+from planner.augment import slot_swap, slot_words
+from planner.config import TrainSettings
+from planner.dataset import PlannerExample
+
+IMG = np.zeros((4, 4, 3), dtype=np.uint8)
+
+
+def _ex(task, goal, prev, target):
+    return PlannerExample(image=IMG, goal=goal, previous_instruction=prev, target=target, task=task)
+
+
+def _buttons():
+    return [
+        _ex("buttons", "push the red button, then the green button", None, "move above the red button"),
+        _ex("buttons", "push the red button, then the green button", "release the red button",
+            "move above the green button"),
+        _ex("buttons", "push the blue button", "push the blue button", "release the blue button"),
+        _ex("drawer", "open the top drawer", None, "reach for the top drawer handle"),
+        _ex("drawer", "open the bottom drawer", "grasp the bottom drawer handle",
+            "pull the bottom drawer open"),
+        _ex("tap", "turn left tap", None, "reach for the left tap handle"),  # one goal: no slot
+    ]
+
+
+def test_slots_vary_across_goals_and_are_spoken_in_instructions():
+    slots = slot_words(_buttons())
+    # "then", "green"... : "then" varies but no instruction says it; "push"/"button" never vary
+    assert slots == {"buttons": ["blue", "green", "red"], "drawer": ["bottom", "top"], "tap": []}
+
+
+def test_copies_rename_consistently_and_keep_the_image():
+    base = _buttons()
+    out = slot_swap(base, copies=3, seed=0)
+    assert out[: len(base)] == base
+    extra = out[len(base):]
+    # every example but the tap one (no slot word) gets three copies
+    assert len(extra) == 3 * 5
+    pool = {"blue", "green", "red", "bottom", "top"}
+    sources = [b for b in base[:5] for _ in range(3)]  # copies follow their source, in order
+    for src, copy in zip(sources, extra, strict=True):
+        assert copy.image is src.image
+        # word by word, the copy differs from its source only at slot words, and the same source
+        # word always maps to the same new word (in goal, previous instruction and target)
+        mapping = {}
+        for a_text, b_text in [(src.goal, copy.goal), (src.previous_instruction or "",
+                                                          copy.previous_instruction or ""),
+                               (src.target, copy.target)]:
+            a_words, b_words = a_text.replace(",", " ,").split(), b_text.replace(",", " ,").split()
+            assert len(a_words) == len(b_words)
+            for a, b in zip(a_words, b_words, strict=True):
+                if a != b:
+                    assert a in pool and b in pool
+                mapping.setdefault(a, b)
+                assert mapping[a] == b
+        renamed = [mapping[w] for w in ("red", "green", "blue", "top", "bottom") if w in mapping]
+        assert len(set(renamed)) == len(renamed)  # injective: two buttons never get one colour
+
+
+def test_swapping_is_seeded_and_off_at_zero():
+    base = _buttons()
+    assert slot_swap(base, 0, seed=1) == base
+    assert slot_swap(base, 2, seed=5) == slot_swap(base, 2, seed=5)
+    assert slot_swap(base, 4, seed=5) != slot_swap(base, 4, seed=6)
+    with pytest.raises(ValueError, match="copies"):
+        slot_swap(base, -1, seed=0)
+    with pytest.raises(ValueError, match="slot_swap_copies"):
+        TrainSettings(slot_swap_copies=-2)
+
+
+def test_off_keeps_the_cache_keys_of_settings_made_before_the_option():
+    assert "slot_swap_copies" not in TrainSettings().key_dict()
+    assert TrainSettings(slot_swap_copies=2).key_dict()["slot_swap_copies"] == 2
