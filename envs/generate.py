@@ -7,8 +7,10 @@ Layout: ``DIR/<split>/<task>/<task>_seed<NNNNN>/`` (``rdd.data.native`` format, 
 atomically). Seeds come from the split's range (``SPLIT_SEEDS``), which never overlap, and the
 variation of seed s is ``s mod number_of_variations``. A seed whose expert fails is recorded in
 ``DIR/<split>/<task>/failed_seeds.json`` and replaced by the next seed of the range, so each task
-gets N successful demonstrations. Re-running resumes: finished episodes and known failures are
-skipped.
+gets N successful demonstrations, unless more than ``--max-failures`` new seeds fail for one task
+(default ``2 * episodes + 10``): then generation stops with an error that names the task and its
+commonest failures, since a task that fails that often is broken rather than unlucky. Re-running
+resumes: finished episodes and known failures are skipped (and not counted again).
 """
 
 from __future__ import annotations
@@ -71,9 +73,28 @@ def _write_failed(path: Path, failed: dict[str, str]) -> None:
     os.replace(tmp, path)
 
 
+def default_max_failures(episodes: int) -> int:
+    """New expert failures per task tolerated before generation gives up on the task."""
+    return 2 * episodes + 10
+
+
+def _too_many_failures(task: str, split: str, new: list[str], done: int, episodes: int,
+                       path: Path) -> RuntimeError:
+    from collections import Counter
+
+    common = "; ".join(f"{n}x {why}" for why, n in Counter(new).most_common(3))
+    return RuntimeError(f"{task}: the expert failed on {len(new)} new {split} seeds with only {done} of "
+                        f"{episodes} demos made (commonest: {common}); every failure is in {path}. "
+                        f"Raise --max-failures to keep trying.")
+
+
 def generate(tasks, split: str, episodes: int, out: str | Path, workers: int = 1, image_size: int = 128,
-             render: bool = True, progress: bool = True) -> dict[str, list[int]]:
-    """Make ``episodes`` successful demonstrations per task; returns the seeds used per task."""
+             render: bool = True, progress: bool = True,
+             max_failures: int | None = None) -> dict[str, list[int]]:
+    """Make ``episodes`` successful demonstrations per task; returns the seeds used per task.
+
+    Gives up on a task (RuntimeError) once more than ``max_failures`` new seeds failed for it.
+    """
     from tqdm import tqdm
 
     from envs.tasks import TASKS
@@ -85,6 +106,10 @@ def generate(tasks, split: str, episodes: int, out: str | Path, workers: int = 1
         raise ValueError(f"unknown tasks {unknown}; known: {sorted(TASKS)}")
     if episodes < 1:
         raise ValueError(f"--episodes must be positive, got {episodes}")
+    if max_failures is None:
+        max_failures = default_max_failures(episodes)
+    if max_failures < 0:
+        raise ValueError(f"--max-failures must be >= 0, got {max_failures}")
     seeds_range = SPLIT_SEEDS[split]
     used: dict[str, list[int]] = {}
     bar = tqdm(total=episodes * len(tasks), desc=f"{split} demos", disable=not progress, file=sys.stderr)
@@ -96,6 +121,7 @@ def generate(tasks, split: str, episodes: int, out: str | Path, workers: int = 1
             failed_path = task_dir / "failed_seeds.json"
             failed = _read_failed(failed_path)
             done: list[int] = []
+            new_failures: list[str] = []
             it = iter(seeds_range)
             while len(done) < episodes:
                 batch = []
@@ -124,6 +150,10 @@ def generate(tasks, split: str, episodes: int, out: str | Path, workers: int = 1
                     else:
                         failed[str(seed)] = str(failure or "success detector false")
                         _write_failed(failed_path, failed)
+                        new_failures.append(failed[str(seed)])
+                if len(new_failures) > max_failures:
+                    raise _too_many_failures(task, split, new_failures, len(done), episodes,
+                                             failed_path)
             used[task] = sorted(done)[:episodes]
     finally:
         bar.close()
@@ -144,9 +174,11 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="parallel worker processes")
     ap.add_argument("--image-size", type=int, default=128)
     ap.add_argument("--no-render", action="store_true", help="skip images (low-dim data only)")
+    ap.add_argument("--max-failures", type=int, default=None,
+                    help="new expert failures per task before giving up (default 2*episodes+10)")
     args = ap.parse_args(argv)
     used = generate(args.tasks or task_names(), args.split, args.episodes, args.out, args.workers,
-                    args.image_size, not args.no_render)
+                    args.image_size, not args.no_render, max_failures=args.max_failures)
     for task, seeds in used.items():
         print(f"{task}: {len(seeds)} episodes, seeds {seeds[0]}..{seeds[-1]}")
     return 0

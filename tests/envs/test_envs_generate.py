@@ -85,3 +85,35 @@ def test_failed_seeds_are_recorded_and_replaced(tmp_path, monkeypatch):
     calls.clear()
     assert gen.generate(["turn_tap"], "train", 3, tmp_path, progress=False) == used
     assert calls == []  # resumed: neither finished nor failed seeds are run again
+
+
+def test_generate_gives_up_on_a_task_whose_expert_keeps_failing(tmp_path, monkeypatch):
+    import json
+
+    import envs.generate as gen
+
+    calls = []
+
+    def always_fails(task, seed, split, out, image_size, render):
+        calls.append(seed)
+        return seed, False, "lid slipped" if seed % 2 else "success detector false"
+
+    monkeypatch.setattr(gen, "generate_one", always_fails)
+    with pytest.raises(RuntimeError, match=r"turn_tap: the expert failed on 4 new train seeds.*0 of 2"
+                                           r".*failed_seeds\.json.*--max-failures"):
+        generate(["turn_tap"], "train", 2, tmp_path, progress=False, max_failures=3)
+    assert len(calls) == 4  # never more than the budget plus the last batch's overshoot
+    failed = json.loads((tmp_path / "train" / "turn_tap" / "failed_seeds.json").read_text())
+    assert sorted(int(s) for s in failed) == calls
+
+    # a rerun skips the known failures without counting them, and goes on from the next seed
+    def fails_twice_more(task, seed, split, out, image_size, render):
+        calls.append(seed)
+        return seed, seed >= 6, None if seed >= 6 else "slipped"
+
+    monkeypatch.setattr(gen, "generate_one", fails_twice_more)
+    calls.clear()
+    used = generate(["turn_tap"], "train", 2, tmp_path, progress=False, max_failures=2)
+    assert used == {"turn_tap": [6, 7]} and calls == [4, 5, 6, 7]
+    with pytest.raises(ValueError, match="max-failures"):
+        generate(["turn_tap"], "train", 2, tmp_path, progress=False, max_failures=-1)
