@@ -27,7 +27,7 @@ from experiments.results import (
     method_label,
     per_task_success,
 )
-from experiments.stages import StageCache, read_json, spec_key, write_json_atomic
+from experiments.stages import StageCache, read_json, spec_key, stage_code_key, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -156,7 +156,7 @@ class Run:
         Generation is resumable per episode, so a run asking for 3 demos reuses the 1 an earlier
         run made; each episode's key is its env config, task, split and seed.
         """
-        env_key = spec_key({"env": self.node("env")})
+        env_key = spec_key({"env": self.node("env"), "code": stage_code_key("demos")})
         root = self.cache.root / "demos" / env_key
         with self.cache.lock("demos", f"{env_key}-{task}-{split}"), \
                 self.cache.timed("episodes") as timing:
@@ -165,7 +165,7 @@ class Run:
             timing["cached"] = all(d / "episode.json" in before for d in dirs)
         out = []
         for d in dirs:
-            key = spec_key({"env": self.node("env"), "episode": d.name, "split": split})
+            key = spec_key({"demos": env_key, "episode": d.name, "split": split})
             if key not in self._episode_cache:
                 ep = comp.load_episode(d)
                 self._episode_cache[key] = ep

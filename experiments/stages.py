@@ -1,7 +1,8 @@
 """On-disk stage cache: each pipeline stage's output lives in a directory keyed by what made it.
 
-A stage's key is the SHA-256 of a canonical JSON "spec": the config entries that affect the stage
-plus the keys of the stages it consumes, so changing anything upstream changes every key below it.
+A stage's key is the SHA-256 of a canonical JSON "spec": the config entries that affect the stage,
+the keys of the stages it consumes, and a fingerprint of the source files that make it
+(``STAGE_CODE``), so changing anything upstream, config or code, changes every key below it.
 Outputs are built in a temporary directory and moved into place with ``os.replace`` (atomic), and a
 per-key file lock makes parallel sweep jobs that need the same stage build it once.
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import functools
 import hashlib
 import json
 import os
@@ -23,6 +25,20 @@ from typing import Any
 # Bump when a stage's on-disk layout or meaning changes, so old entries are not reused.
 CACHE_FORMAT = 1
 SPEC_FILE = "spec.json"
+REPO_ROOT = Path(__file__).resolve().parents[1]
+# The source (files or folders, relative to the repository root) whose code makes each stage; its
+# fingerprint is part of the stage's key. Code a stage reaches only through an upstream stage is
+# covered by that stage's key, which the downstream spec contains.
+STAGE_CODE: dict[str, tuple[str, ...]] = {
+    "demos": ("envs", "rdd/data"),
+    "expert_labels": ("experiments/labeler.py", "experiments/retrieval_labeler.py", "rdd/segments.py"),
+    "policy": ("policy", "envs"),
+    "database": ("rdd/database.py", "rdd/index", "rdd/encoders", "rdd/data"),
+    "decompositions": ("rdd", "experiments/labeler.py", "experiments/retrieval_labeler.py"),
+    "planner_base": ("planner",),
+    "planner_finetune": ("planner",),
+    "evaluation": ("experiments/evaluation.py", "envs", "policy", "planner"),
+}
 
 
 def canonical(obj: Any) -> Any:
@@ -45,6 +61,27 @@ def canonical(obj: Any) -> Any:
     if isinstance(obj, float | int | str | bool) or obj is None:
         return obj
     raise TypeError(f"cannot put {type(obj).__name__} into a stage cache key: {obj!r}")
+
+
+@functools.cache
+def code_fingerprint(paths: tuple[str, ...], root: Path = REPO_ROOT) -> str:
+    """SHA-256 (16 hex digits) of the Python sources under ``paths`` (names and contents)."""
+    h = hashlib.sha256()
+    for rel in paths:
+        base = root / rel
+        if not base.exists():
+            raise FileNotFoundError(f"stage code path {rel!r} is not in {root} (experiments.stages.STAGE_CODE)")
+        files = [base] if base.is_file() else sorted(base.rglob("*.py"))
+        for f in files:
+            h.update(str(f.relative_to(root)).encode() + b"\0")
+            h.update(f.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+def stage_code_key(stage: str) -> str | None:
+    """Fingerprint of the code that makes ``stage`` (None for a stage without ``STAGE_CODE``)."""
+    paths = STAGE_CODE.get(stage)
+    return None if paths is None else code_fingerprint(paths)
 
 
 def spec_key(spec: dict[str, Any]) -> str:
@@ -99,6 +136,9 @@ class StageCache:
         Returns ``(directory, key)``. The timing goes to ``self.timings[timing_name or stage]``
         (accumulated when a stage runs several times in one run, e.g. once per task).
         """
+        code = stage_code_key(stage)
+        if code is not None:
+            spec = {**spec, "code": code}
         key = spec_key(spec)
         final = self.path(stage, key)
         start = time.perf_counter()

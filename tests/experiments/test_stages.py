@@ -79,3 +79,33 @@ def test_unknown_option_is_a_clear_error():
         check_component(node, "decomposer")
     with pytest.raises(ImportError, match="cannot import"):
         check_component(OmegaConf.create({"_target_": "rdd.nope.Nothing"}), "decomposer")
+
+
+def test_code_fingerprint_follows_source_contents(tmp_path: Path):
+    from experiments.stages import code_fingerprint
+
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "a.py").write_text("x = 1\n")
+    (tmp_path / "pkg" / "notes.txt").write_text("not code")
+    first = code_fingerprint(("pkg",), tmp_path)
+    (tmp_path / "pkg" / "notes.txt").write_text("other notes")
+    code_fingerprint.cache_clear()
+    assert code_fingerprint(("pkg",), tmp_path) == first  # only Python sources count
+    (tmp_path / "pkg" / "a.py").write_text("x = 2\n")
+    code_fingerprint.cache_clear()
+    assert code_fingerprint(("pkg",), tmp_path) != first
+    with pytest.raises(FileNotFoundError, match="STAGE_CODE"):
+        code_fingerprint(("missing",), tmp_path)
+    code_fingerprint.cache_clear()
+
+
+def test_every_stage_key_covers_its_code(tmp_path: Path):
+    from experiments.stages import STAGE_CODE, stage_code_key
+
+    for stage in STAGE_CODE:  # every listed path exists in the repository
+        assert len(stage_code_key(stage)) == 16
+    cache = StageCache(tmp_path)
+    path, key = cache.get_or_build("planner_base", {"a": 1}, lambda d: None)
+    recorded = json.loads((path / "spec.json").read_text())
+    assert recorded["code"] == stage_code_key("planner_base")
+    assert key == spec_key({"a": 1, "code": stage_code_key("planner_base")}) != spec_key({"a": 1})
