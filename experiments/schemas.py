@@ -43,7 +43,9 @@ class EvalConfig:
     """Closed-loop evaluation: seeds come from the env's test split, disjoint from demo seeds."""
 
     episodes_per_task: int = 2
-    max_steps: int = 12  # planner/policy keyframe steps before an episode counts as failed
+    # planner/policy steps (one sub-task each) before an episode counts as failed; RACER's 25
+    # leaves room to replan after the longest expert plan here (stack_blocks with 3 blocks: 18)
+    max_steps: int = 25
     # Evaluation episode i of run seed s uses test-split seed index s * seed_stride + i.
     seed_stride: int = 1000
 
