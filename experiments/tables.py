@@ -16,7 +16,7 @@ import math
 import re
 import sys
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -120,6 +120,11 @@ def _latest_per_method_seed(runs: Sequence[RunRecord]) -> dict[tuple[str, int], 
     return out
 
 
+def _tasks_in_order(per_task_maps: Iterable[dict]) -> list[str]:
+    """Task names in first-seen order over the runs' per-task maps."""
+    return list(dict.fromkeys(task for m in per_task_maps for task in m))
+
+
 def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     """The paper's main-table form from hierarchical runs."""
     runs = [r for r in runs if r.status == "ok" and r.data.get("per_task")]
@@ -127,11 +132,7 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
         return None
     methods = _methods_in_order(runs)
     by_key = _latest_per_method_seed(runs)
-    tasks: list[str] = []
-    for run in runs:
-        for task in run.data["per_task"]:
-            if task not in tasks:
-                tasks.append(task)
+    tasks = _tasks_in_order(run.data["per_task"] for run in runs)
     seeds = sorted({seed for _, seed in by_key})
     # succ[method][seed][task]
     succ: dict[str, dict[int, dict[str, float]]] = defaultdict(dict)
@@ -186,11 +187,7 @@ def miou_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
         return None
     methods = _methods_in_order(runs)
     by_key = _latest_per_method_seed(runs)
-    tasks: list[str] = []
-    for run in runs:
-        for task in run.data["decomposition"]["per_task"]:
-            if task not in tasks:
-                tasks.append(task)
+    tasks = _tasks_in_order(run.data["decomposition"]["per_task"] for run in runs)
     header = ["Method", "Avg. mIoU ↑", *tasks]
     rows, means = [], []
     for m in methods:
