@@ -5,8 +5,10 @@ heart instead of reading it from the goal. A *slot word* of a task is a goal wor
 between the task's goals and also appears in some instruction (a colour, a shape, a drawer or tap
 side); structural words ("then", "two") and words every goal shares are never slots. An augmented
 copy renames each slot word it contains, through one random injective mapping onto the slot words
-of the whole training set, in the goal, the previous instruction and the target alike; the image is
-kept. The copy's answer then follows from the goal alone, which is what the planner must learn.
+of its own task (``pool="task"``) or of the whole training set (``pool="all"``), in the goal, the
+previous instruction and the target alike; the image is kept. The copy's answer then follows from
+the goal alone, which is what the planner must learn. The task pool keeps a colour a colour: with
+the pool of all tasks a planner that fails to copy may say "release the top button".
 """
 
 from __future__ import annotations
@@ -48,28 +50,36 @@ def _rename(text: str | None, mapping: dict[str, str]) -> str | None:
     return _WORD.sub(lambda m: mapping.get(m.group(0), m.group(0)), text)
 
 
-def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int) -> list[PlannerExample]:
+POOLS = ("task", "all")
+
+
+def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
+              pool: str = "task") -> list[PlannerExample]:
     """``examples`` followed by ``copies`` slot-renamed copies of each example that has slot words.
 
+    ``pool``: rename onto the example's own task's slot words ("task") or every task's ("all").
     Deterministic in ``seed``. Examples without slot words (or a pool too small to rename them
     injectively) get no copies.
     """
     if copies < 0:
         raise ValueError(f"slot_swap copies must be >= 0, got {copies}")
+    if pool not in POOLS:
+        raise ValueError(f"slot_swap pool must be one of {POOLS}, got {pool!r}")
     out = list(examples)
     if copies == 0:
         return out
     slots = slot_words(examples)
-    pool = sorted(set().union(*slots.values())) if slots else []
+    every = sorted(set().union(*slots.values())) if slots else []
     rng = np.random.default_rng(seed)
     for ex in examples:
+        names = slots.get(ex.task, []) if pool == "task" else every
         present = [w for w in slots.get(ex.task, [])
                    if w in _words(ex.goal) | _words(ex.target) | _words(ex.previous_instruction)]
-        if not present or len(pool) < len(present):
+        if not present or len(names) < len(present):
             continue
         for _ in range(copies):
-            new = rng.choice(len(pool), size=len(present), replace=False)
-            mapping = {w: pool[j] for w, j in zip(present, new, strict=True)}
+            new = rng.choice(len(names), size=len(present), replace=False)
+            mapping = {w: names[j] for w, j in zip(present, new, strict=True)}
             out.append(replace(ex, goal=_rename(ex.goal, mapping),
                                previous_instruction=_rename(ex.previous_instruction, mapping),
                                target=_rename(ex.target, mapping)))

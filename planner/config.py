@@ -55,6 +55,7 @@ class TrainSettings:
     # slot-renamed copies per example (planner.augment): teaches reading objects/colours/order
     # from the goal instead of recalling them from a few demos; 0 = off
     slot_swap_copies: int = 0
+    slot_swap_pool: str = "task"  # rename onto the task's own slot words, or "all" tasks'
 
     def __post_init__(self) -> None:
         if self.schedule not in SCHEDULES:
@@ -67,6 +68,8 @@ class TrainSettings:
             raise ValueError(f"planner inner_frame_stride must be >= 1, got {self.inner_frame_stride}")
         if self.slot_swap_copies < 0:
             raise ValueError(f"planner slot_swap_copies must be >= 0, got {self.slot_swap_copies}")
+        if self.slot_swap_pool not in ("task", "all"):
+            raise ValueError(f"planner slot_swap_pool must be task or all, got {self.slot_swap_pool!r}")
 
     def key_dict(self) -> dict[str, Any]:
         """The settings as a cache key; options added later are left out at their 'off' value."""
@@ -74,6 +77,8 @@ class TrainSettings:
         for k, off in (("slot_swap_copies", 0), ("inner_frame_stride", 1)):
             if d[k] == off:
                 d.pop(k)
+        if not self.slot_swap_copies:
+            d.pop("slot_swap_pool")
         return d
 
 

@@ -61,6 +61,20 @@ def test_copies_rename_consistently_and_keep_the_image():
         assert len(set(renamed)) == len(renamed)  # injective: two buttons never get one colour
 
 
+def test_task_pool_keeps_words_within_their_task_and_all_pool_mixes_them():
+    base = _buttons()
+    colours, sides = {"blue", "green", "red"}, {"bottom", "top"}
+    for copy in slot_swap(base, copies=20, seed=3)[len(base):]:
+        words = set(copy.goal.replace(",", " ").split())
+        assert words & (sides if copy.task == "buttons" else colours) == set()
+    mixed = slot_swap(base, copies=20, seed=3, pool="all")[len(base):]
+    assert any(set(c.goal.split()) & sides for c in mixed if c.task == "buttons")
+    with pytest.raises(ValueError, match="pool"):
+        slot_swap(base, 1, seed=0, pool="vocabulary")
+    with pytest.raises(ValueError, match="slot_swap_pool"):
+        TrainSettings(slot_swap_pool="vocabulary")
+
+
 def test_swapping_is_seeded_and_off_at_zero():
     base = _buttons()
     assert slot_swap(base, 0, seed=1) == base
@@ -73,5 +87,7 @@ def test_swapping_is_seeded_and_off_at_zero():
 
 
 def test_off_keeps_the_cache_keys_of_settings_made_before_the_option():
-    assert "slot_swap_copies" not in TrainSettings().key_dict()
+    off = TrainSettings().key_dict()
+    assert "slot_swap_copies" not in off and "slot_swap_pool" not in off
     assert TrainSettings(slot_swap_copies=2).key_dict()["slot_swap_copies"] == 2
+    assert TrainSettings(slot_swap_copies=2).key_dict()["slot_swap_pool"] == "task"
