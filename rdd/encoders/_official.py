@@ -9,6 +9,7 @@ torchvision's ImageNet ResNet-50 uses its weights' own transform instead (``Resi
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -109,18 +110,6 @@ def build_official(
 
 def official_builder(spec: OfficialSpec):
     """The module-level ``build(**options)`` of an official encoder: ``build_official`` bound to ``spec``."""
-
-    def build(
-        checkpoint: str | None = None,
-        random_weights: bool = False,
-        seed: int = 0,
-        batch_size: int = 16,
-        num_threads: int | None = None,
-    ) -> TorchEncoder:
-        return build_official(
-            spec, checkpoint=checkpoint, random_weights=random_weights, seed=seed,
-            batch_size=batch_size, num_threads=num_threads,
-        )
-
+    build = functools.partial(build_official, spec)
     build.__doc__ = f"The ``{spec.name}`` encoder from its official checkpoint (see the module docstring)."
     return build
