@@ -20,6 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from planner.config import SLOT_SWAP_POOLS
 from planner.dataset import PlannerExample
 
 _WORD = re.compile(r"[A-Za-z]+")
@@ -50,9 +51,6 @@ def _rename(text: str | None, mapping: dict[str, str]) -> str | None:
     return _WORD.sub(lambda m: mapping.get(m.group(0), m.group(0)), text)
 
 
-POOLS = ("task", "all")
-
-
 def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
               pool: str = "task") -> list[PlannerExample]:
     """``examples`` followed by ``copies`` slot-renamed copies of each example that has slot words.
@@ -63,8 +61,8 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
     """
     if copies < 0:
         raise ValueError(f"slot_swap copies must be >= 0, got {copies}")
-    if pool not in POOLS:
-        raise ValueError(f"slot_swap pool must be one of {POOLS}, got {pool!r}")
+    if pool not in SLOT_SWAP_POOLS:
+        raise ValueError(f"slot_swap pool must be one of {SLOT_SWAP_POOLS}, got {pool!r}")
     out = list(examples)
     if copies == 0:
         return out
@@ -73,8 +71,8 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
     rng = np.random.default_rng(seed)
     for ex in examples:
         names = slots.get(ex.task, []) if pool == "task" else every
-        present = [w for w in slots.get(ex.task, [])
-                   if w in _words(ex.goal) | _words(ex.target) | _words(ex.previous_instruction)]
+        said = _words(ex.goal) | _words(ex.target) | _words(ex.previous_instruction)
+        present = [w for w in slots.get(ex.task, []) if w in said]
         if not present or len(names) < len(present):
             continue
         for _ in range(copies):

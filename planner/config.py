@@ -10,6 +10,7 @@ from typing import Any
 
 MODEL_KINDS = ("tiny_llava", "tiny_llava_next", "llava_next_8b")
 SCHEDULES = ("cosine", "linear", "constant", "constant_with_warmup")
+SLOT_SWAP_POOLS = ("task", "all")
 
 
 def _coerce(cls, value: Any, where: str):
@@ -35,6 +36,14 @@ def _plain(v: Any) -> Any:
     if hasattr(v, "__iter__") and not isinstance(v, str):
         return [_plain(x) for x in v]
     return v
+
+
+def _key_dict(settings: Any, added_off: dict[str, Any]) -> dict[str, Any]:
+    """``asdict(settings)`` without the later-added options that hold their 'off' value.
+
+    So the cache keys of models trained before an option existed stay valid.
+    """
+    return {k: v for k, v in asdict(settings).items() if k not in added_off or v != added_off[k]}
 
 
 @dataclass
@@ -68,17 +77,15 @@ class TrainSettings:
             raise ValueError(f"planner inner_frame_stride must be >= 1, got {self.inner_frame_stride}")
         if self.slot_swap_copies < 0:
             raise ValueError(f"planner slot_swap_copies must be >= 0, got {self.slot_swap_copies}")
-        if self.slot_swap_pool not in ("task", "all"):
-            raise ValueError(f"planner slot_swap_pool must be task or all, got {self.slot_swap_pool!r}")
+        if self.slot_swap_pool not in SLOT_SWAP_POOLS:
+            raise ValueError(f"planner slot_swap_pool must be one of {SLOT_SWAP_POOLS}, "
+                             f"got {self.slot_swap_pool!r}")
 
     def key_dict(self) -> dict[str, Any]:
-        """The settings as a cache key; options added later are left out at their 'off' value."""
-        d = asdict(self)
-        for k, off in (("slot_swap_copies", 0), ("inner_frame_stride", 1)):
-            if d[k] == off:
-                d.pop(k)
+        """The settings as a cache key; options added later are left out while they are off."""
+        d = _key_dict(self, {"slot_swap_copies": 0, "inner_frame_stride": 1})
         if not self.slot_swap_copies:
-            d.pop("slot_swap_pool")
+            d.pop("slot_swap_pool")  # meaningless without copies
         return d
 
 
@@ -105,6 +112,10 @@ class LoraSettings:
         bad = [m for m in self.train_modules if "vision" in m]
         if bad:
             raise ValueError(f"planner lora.train_modules {bad}: the vision tower stays frozen")
+
+    def key_dict(self) -> dict[str, Any]:
+        """The settings as a cache key; options added later are left out while they are off."""
+        return _key_dict(self, {"train_modules": []})
 
 
 @dataclass

@@ -201,8 +201,7 @@ def finetune_lora(cfg: PlannerConfig, base_dir: str | Path, examples: Sequence[P
     settings = cfg.finetune
     if seed is not None:
         settings = TrainSettings(**{**settings.__dict__, "seed": int(seed)})
-    lora = {k: v for k, v in cfg.lora.__dict__.items() if k != "train_modules" or v}  # old keys stay
-    key = digest({"base": _base_identity(base_dir), "lora": lora,
+    key = digest({"base": _base_identity(base_dir), "lora": cfg.lora.key_dict(),
                   "finetune": settings.key_dict(), "data": examples_fingerprint(examples)})
     final = Path(cache_dir) / "lora" / f"{cfg.kind}-{key}"
     if (final / CONFIG_FILE).is_file():
