@@ -62,16 +62,14 @@ def run(cfg: PlannerConfig, cache_dir: Path, pretrain_episodes: int, demos: int,
     adapter = finetune_lora(cfg, base, training_examples(demo, cfg.finetune, cfg.view), cache_dir,
                             progress=progress)
     test_ex = training_examples(test, TrainSettings(), cfg.view)  # segment starts only
-    base_planner, tuned = Planner(cfg, base), Planner(cfg, base, adapter)
-    queries = [(e.image, e.goal, e.previous_instruction) for e in test_ex]
-    base_pred, tuned_pred = base_planner.predict(queries), tuned.predict(queries)
-    from planner.prompts import clean_output
+    _, base_hit = Planner(cfg, base).hits(test_ex)
+    tuned_pred, tuned_hit = Planner(cfg, base, adapter).hits(test_ex)
 
     rows, errors = [], []
     for task in eval_tasks:
         idx = [i for i, e in enumerate(test_ex) if e.task == task]
-        hit_b = [base_pred[i] == clean_output(test_ex[i].target) for i in idx]
-        hit_f = [tuned_pred[i] == clean_output(test_ex[i].target) for i in idx]
+        hit_b = [base_hit[i] for i in idx]
+        hit_f = [tuned_hit[i] for i in idx]
         rows.append((task, len(idx), sum(hit_b) / len(idx), sum(hit_f) / len(idx)))
         errors += [{"task": task, "episode": test_ex[i].episode, "frame": test_ex[i].frame,
                     "previous": test_ex[i].previous_instruction, "target": test_ex[i].target,

@@ -14,6 +14,7 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from planner.config import PlannerConfig, TrainSettings
@@ -40,17 +41,23 @@ def run(cfg: PlannerConfig, cache_dir: Path, pretrain_episodes: int, demos: int,
     test_ex = training_examples(test, TrainSettings(), cfg.view)
     pre_ex = training_examples(pre_test, TrainSettings(), cfg.view)
     base_planner = Planner(cfg, base)
-    tuned = Planner(cfg, base, adapter)
+    _, base_hit = base_planner.hits(test_ex)
+    _, tuned_hit = Planner(cfg, base, adapter).hits(test_ex)
+
+    def rate(hit: list[bool], task: str | None = None) -> float:
+        picked = [h for h, e in zip(hit, test_ex, strict=True) if task is None or e.task == task]
+        if not picked:
+            raise ValueError(f"no held-out examples{'' if task is None else f' of {task}'} to score")
+        return float(np.mean(picked))
+
     out = {
         "kind": cfg.kind, "pretrain_episodes_per_task": pretrain_episodes, "demos_per_task": demos,
         "heldout_episodes_per_task": heldout, "heldout_examples": len(test_ex),
-        "base_exact_match_eval_tasks": base_planner.exact_match(test_ex),
-        "finetuned_exact_match_eval_tasks": tuned.exact_match(test_ex),
+        "base_exact_match_eval_tasks": rate(base_hit),
+        "finetuned_exact_match_eval_tasks": rate(tuned_hit),
         "base_exact_match_pretrain_tasks_heldout": base_planner.exact_match(pre_ex),
-        "per_task_finetuned": {t: tuned.exact_match([e for e in test_ex if e.task == t])
-                               for t in EVAL_TASKS},
-        "per_task_base": {t: base_planner.exact_match([e for e in test_ex if e.task == t])
-                          for t in EVAL_TASKS},
+        "per_task_finetuned": {t: rate(tuned_hit, t) for t in EVAL_TASKS},
+        "per_task_base": {t: rate(base_hit, t) for t in EVAL_TASKS},
         "pretrain_cpu_seconds_this_call": t1 - t0, "finetune_cpu_seconds_this_call": t2 - t1,
         "base_dir": str(base), "adapter_dir": str(adapter),
         "finetune_log": json.loads((Path(adapter) / "train_log.json").read_text()),

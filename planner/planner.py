@@ -67,11 +67,15 @@ class Planner:
         """The next sub-task instruction (greedy, at most ``max_new_tokens`` tokens)."""
         return self.predict([(image, goal, previous_instruction)])[0]
 
+    def hits(self, examples: Sequence[PlannerExample],
+             batch_size: int = 16) -> tuple[list[str], list[bool]]:
+        """Predictions for ``examples`` and whether each equals its target (whitespace/full stop insensitive)."""
+        preds = self.predict([(e.image, e.goal, e.previous_instruction) for e in examples],
+                             batch_size=batch_size)
+        return preds, [p == clean_output(e.target) for p, e in zip(preds, examples, strict=True)]
+
     def exact_match(self, examples: Sequence[PlannerExample], batch_size: int = 16) -> float:
         """Fraction of examples whose prediction equals the target (whitespace/full stop insensitive)."""
         if not examples:
             raise ValueError("exact_match needs at least one example")
-        preds = self.predict([(e.image, e.goal, e.previous_instruction) for e in examples],
-                             batch_size=batch_size)
-        hits = [p == clean_output(e.target) for p, e in zip(preds, examples, strict=True)]
-        return float(np.mean(hits))
+        return float(np.mean(self.hits(examples, batch_size)[1]))
