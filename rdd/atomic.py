@@ -1,0 +1,155 @@
+"""The project's one way to write a file or a folder: all of it, or nothing.
+
+Every writer (CLI outputs, databases, caches, stage outputs, checkpoints, plots, tables) goes
+through :func:`atomic_file` or :func:`atomic_dir`: the data is written to a uniquely named
+temporary sibling in the target folder, flushed to disk (``fsync``), and renamed into place, so a
+crash or Ctrl-C leaves either the old file or the new one, never half of one, and two writers never
+share a temporary name. Files get the permissions an ordinary ``open()`` would give them under the
+process umask (``tempfile`` alone would leave them 0600).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import IO, Any
+
+__all__ = [
+    "TargetExistsError",
+    "atomic_dir",
+    "atomic_file",
+    "write_bytes_atomic",
+    "write_json_atomic",
+    "write_text_atomic",
+]
+
+
+class TargetExistsError(FileExistsError):
+    """The target exists and the caller did not ask to replace it."""
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _fsync_dir(folder: Path) -> None:
+    with contextlib.suppress(OSError):  # some filesystems cannot open or fsync a folder
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _check_target(path: Path, overwrite: bool) -> None:
+    if not overwrite and (path.exists() or path.is_symlink()):
+        raise TargetExistsError(f"{path} already exists (refusing to replace it)")
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | os.PathLike, mode: str = "wb", *, overwrite: bool = True) -> Iterator[IO]:
+    """Open a temporary file beside ``path`` for writing; on success it is fsynced and renamed to ``path``.
+
+    With ``overwrite=False`` an existing ``path`` raises :class:`TargetExistsError` and is kept (the
+    final rename is a hard link then, so a concurrent writer that got there first still wins alone).
+    """
+    if "w" not in mode:
+        raise ValueError(f"atomic_file writes whole files: mode must contain 'w', got {mode!r}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _check_target(path, overwrite)
+    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    tmp = Path(tmp_name)
+    try:
+        os.fchmod(fd, 0o666 & ~_umask())
+        with os.fdopen(fd, mode) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)  # fails if path appeared meanwhile: no silent replacement
+            except FileExistsError as exc:
+                raise TargetExistsError(f"{path} already exists (refusing to replace it)") from exc
+            tmp.unlink()
+        _fsync_dir(path.parent)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes, *, overwrite: bool = True) -> Path:
+    """Write ``data`` to ``path`` atomically; returns the path."""
+    with atomic_file(path, "wb", overwrite=overwrite) as fh:
+        fh.write(data)
+    return Path(path)
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, *, overwrite: bool = True) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically; returns the path."""
+    return write_bytes_atomic(path, text.encode("utf-8"), overwrite=overwrite)
+
+
+def write_json_atomic(
+    path: str | os.PathLike,
+    obj: Any,
+    *,
+    overwrite: bool = True,
+    dumps: Callable[[Any], str] | None = None,
+) -> Path:
+    """Write ``obj`` as JSON (indented, or through ``dumps``) to ``path`` atomically; returns the path."""
+    text = dumps(obj) if dumps is not None else json.dumps(obj, indent=1) + "\n"
+    return write_text_atomic(path, text, overwrite=overwrite)
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``path``; on success it is renamed to ``path``.
+
+    The folder only appears under its final name once everything in it is written. With
+    ``overwrite=False`` an existing ``path`` raises :class:`TargetExistsError` (before and after
+    the work, so a concurrent writer that finished first is never replaced); with ``True`` the old
+    folder is moved aside and removed only after the new one is in place.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _check_target(path, overwrite)
+    tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"))
+    try:
+        os.chmod(tmp, 0o777 & ~_umask())
+        yield tmp
+        for root, _dirs, files in os.walk(tmp):
+            for name in files:
+                with contextlib.suppress(OSError):
+                    fd = os.open(os.path.join(root, name), os.O_RDONLY)
+                    try:
+                        os.fsync(fd)
+                    finally:
+                        os.close(fd)
+        old: Path | None = None
+        if path.exists() or path.is_symlink():
+            if not overwrite:
+                raise TargetExistsError(f"{path} already exists (refusing to replace it)")
+            old = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".old"))
+            os.replace(path, old / "previous")
+        try:
+            os.rename(tmp, path)  # fails if a concurrent writer created path meanwhile
+        except OSError as exc:
+            if old is not None:
+                os.replace(old / "previous", path)
+            raise TargetExistsError(f"{path} already exists (another writer finished first)") from exc
+        finally:
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
+        _fsync_dir(path.parent)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
