@@ -168,7 +168,8 @@ def test_exact_pruning_skips_entries_and_stays_exact():
     dense = ExactIndex(prune=False).fit(begin, end)
     ids_d, dist_d = dense.search_intervals(fv, s, e)
     assert dense.last_searched_fraction == pytest.approx(1.0)
-    np.testing.assert_allclose(dist, dist_d, atol=1e-6)
+    # float32 products over different block shapes round differently (about 1e-6 after the sqrt)
+    np.testing.assert_allclose(dist, dist_d, atol=1e-5)
     ref_ids, ref_dist, cos = brute_force(np.concatenate([fv[s], fv[e - 1]], 1), begin, end)
     np.testing.assert_allclose(dist, ref_dist, atol=1e-5)
     top2 = np.sort(cos, axis=1)[:, -2:]
