@@ -4,6 +4,8 @@
 - a success table (Markdown + LaTeX booktabs): one row per method, Avg. Succ. +/- std over seeds,
   Avg. Rank +/- std (methods ranked per task and seed, ties share the mean rank), one column per task;
 - an mIoU table (decomposition against the expert on the validation demonstrations);
+- paired differences of each method's average success to a reference method (rdd by default) with
+  95% bootstrap intervals over the shared seeded episodes (``experiments.stats``);
 - a solver-speed table (mode=speed runs);
 - PNG plots: success per task and method, and solver time versus frames.
 Skipped runs (e.g. an encoder without weights) are listed under the tables with their reason.
@@ -23,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.results import RunRecord, assign_labels, load_runs
+from experiments.stats import episode_outcomes, paired_difference
 
 
 def _natural_key(path: Path) -> list[object]:
@@ -177,6 +180,39 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
         "evaluation episode(s) per task and seed; ± is the sample std over seeds. "
         "Avg. Rank: methods ranked per task and seed (ties share the mean rank)."
     )
+    return Table(title, header, rows, bold, note)
+
+
+# The method each experiment's paired differences are taken against (its label in the tables).
+REFERENCE = {"abl_alpha": "alpha=1"}
+DEFAULT_REFERENCE = "rdd"
+
+
+def paired_table(title: str, runs: Sequence[RunRecord], reference: str, n_boot: int = 10_000) -> Table | None:
+    """Each method minus ``reference`` in average success, paired by episode, with 95% bootstrap CIs."""
+    runs = [r for r in runs if r.status == "ok" and r.data.get("episodes")]
+    by_key = _latest_per_method_seed(runs)
+    methods = _methods_in_order(runs)
+    if reference not in methods or len(methods) < 2:
+        return None
+
+    def outcomes(method: str) -> dict:
+        return episode_outcomes({seed: r.data["episodes"] for (m, seed), r in by_key.items() if m == method})
+
+    ref = outcomes(reference)
+    header = ["Method", f"Δ Avg. Succ. vs {reference}", "95% CI", "significant", "paired episodes"]
+    rows, bold = [], set()
+    for m in methods:
+        if m == reference:
+            continue
+        d = paired_difference(m, outcomes(m), reference, ref, n_boot=n_boot)
+        rows.append([m, f"{100 * d.mean:+.1f}", f"[{100 * d.low:+.1f}, {100 * d.high:+.1f}]",
+                     "yes" if d.significant else "no", str(d.pairs)])
+        if d.significant:
+            bold.add((len(rows) - 1, 3))
+    note = (f"Percentage points; episodes paired on (seed, task, environment seed); percentile bootstrap "
+            f"({n_boot} resamples of the episodes within each task, all seeds together). "
+            "Significant: the interval excludes 0.")
     return Table(title, header, rows, bold, note)
 
 
@@ -335,6 +371,7 @@ def build_tables(runs: Sequence[RunRecord]) -> dict[str, list[Table]]:
         title = TITLES.get(exp, f"Experiment {exp}")
         tables = [
             success_table(title, eruns),
+            paired_table(f"{title}: paired differences", eruns, REFERENCE.get(exp, DEFAULT_REFERENCE)),
             miou_table(f"{title}: decomposition mIoU against the expert", eruns),
             speed_table(f"{title}: solver time", eruns),
         ]
