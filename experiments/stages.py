@@ -3,24 +3,34 @@
 A stage's key is the SHA-256 of a canonical JSON "spec": the config entries that affect the stage,
 the keys of the stages it consumes, and a fingerprint of the source files that make it
 (``STAGE_CODE``), so changing anything upstream, config or code, changes every key below it.
-Outputs are built in a temporary directory and moved into place with ``os.replace`` (atomic), and a
-per-key file lock makes parallel sweep jobs that need the same stage build it once.
+Outputs are built in a temporary folder and renamed into place (:func:`rdd.atomic.atomic_dir`), so a
+job killed mid-stage leaves no entry a later job could take for a result. A per-key lock file
+(:class:`experiments.locks.FileLock`: owner host/pid, heartbeat, stale-lock takeover; no ``flock``, so
+it holds on NFS-like shared filesystems too) makes concurrent jobs, local or on a cluster, that need
+the same stage build it once: the others wait and take the finished entry.
 """
 
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import functools
 import hashlib
 import json
-import os
+import logging
 import shutil
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from experiments.locks import HEARTBEAT_S, STALE_AFTER_S, FileLock
+from rdd.atomic import TargetExistsError, atomic_dir, write_json_atomic
+
+__all__ = ["StageCache", "StageTiming", "canonical", "code_fingerprint", "read_json", "spec_key",
+           "stage_code_key", "write_json_atomic"]
+
+log = logging.getLogger(__name__)
 
 # Bump when a stage's on-disk layout or meaning changes, so old entries are not reused.
 CACHE_FORMAT = 1
@@ -100,10 +110,17 @@ class StageTiming:
 
 @dataclass
 class StageCache:
-    """A root directory of cached stages, ``<root>/<stage>/<key>/``."""
+    """A root directory of cached stages, ``<root>/<stage>/<key>/``, shared safely by concurrent jobs.
+
+    ``heartbeat_s`` and ``stale_after_s`` tune the per-key locks (see :class:`FileLock`): a lock
+    whose file has not been touched for ``stale_after_s`` seconds is taken over (at once when its
+    owner was a process on this host that no longer exists).
+    """
 
     root: Path
     timings: dict[str, StageTiming] = field(default_factory=dict)
+    heartbeat_s: float = HEARTBEAT_S
+    stale_after_s: float = STALE_AFTER_S
 
     def __post_init__(self) -> None:
         self.root = Path(self.root)
@@ -114,15 +131,12 @@ class StageCache:
 
     @contextlib.contextmanager
     def lock(self, stage: str, key: str) -> Iterator[None]:
-        """Exclusive lock on (stage, key) across processes (parallel sweep jobs)."""
+        """Exclusive lock on (stage, key) across processes and hosts sharing the cache folder."""
         lock_dir = self.root / stage
         lock_dir.mkdir(parents=True, exist_ok=True)
-        with open(lock_dir / f".{key}.lock", "w") as fh:
-            fcntl.flock(fh, fcntl.LOCK_EX)
-            try:
-                yield
-            finally:
-                fcntl.flock(fh, fcntl.LOCK_UN)
+        with FileLock(lock_dir / f".{key}.lock.json", heartbeat_s=self.heartbeat_s,
+                      stale_after_s=self.stale_after_s, label=f"stage {stage}/{key}"):
+            yield
 
     def get_or_build(
         self,
@@ -146,21 +160,26 @@ class StageCache:
         if not (final / SPEC_FILE).is_file():
             with self.lock(stage, key):
                 if not (final / SPEC_FILE).is_file():  # another job may have built it meanwhile
-                    cached = False
-                    tmp = final.parent / f".tmp-{key}-{os.getpid()}-{time.time_ns()}"
-                    tmp.mkdir(parents=True)
-                    try:
-                        build(tmp)
-                        with open(tmp / SPEC_FILE, "w") as fh:
-                            json.dump(canonical(spec), fh, indent=1, sort_keys=True)
-                        if final.exists():  # a stale, unfinished entry (no spec file)
-                            shutil.rmtree(final)
-                        os.replace(tmp, final)
-                    finally:
-                        if tmp.exists():
-                            shutil.rmtree(tmp, ignore_errors=True)
+                    cached = self._build(final, spec, build)
         self._record(timing_name or stage, time.perf_counter() - start, cached)
         return final, key
+
+    def _build(self, final: Path, spec: dict[str, Any], build: Callable[[Path], None]) -> bool:
+        """Build ``final`` under its lock; False when built here, True if another job's finished entry won."""
+        _clear_leftovers(final)
+        try:
+            with atomic_dir(final) as tmp:
+                build(tmp)
+                # Written last: an entry is finished exactly when its spec file is there.
+                write_json_atomic(tmp / SPEC_FILE, canonical(spec),
+                                  dumps=lambda obj: json.dumps(obj, indent=1, sort_keys=True))
+        except TargetExistsError:
+            # Only when a lock was wrongly judged stale and two jobs built: the first rename wins.
+            if not (final / SPEC_FILE).is_file():
+                raise
+            log.warning("%s was finished by another job meanwhile; using that entry", final)
+            return True
+        return False
 
     def _record(self, name: str, seconds: float, cached: bool) -> None:
         prev = self.timings.get(name)
@@ -180,17 +199,6 @@ class StageCache:
             self._record(name, time.perf_counter() - start, flag["cached"])
 
 
-def write_json_atomic(path: Path, obj: Any) -> None:
-    """Write ``obj`` as indented JSON to ``path`` via a temporary file and ``os.replace``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w") as fh:
-        json.dump(obj, fh, indent=1)
-        fh.write("\n")
-    os.replace(tmp, path)
-
-
 def read_json(path: Path) -> Any:
     """Load JSON, naming the file when it is missing or corrupt."""
     try:
@@ -200,3 +208,21 @@ def read_json(path: Path) -> Any:
         raise FileNotFoundError(f"missing file {path}") from exc
     except json.JSONDecodeError as exc:
         raise ValueError(f"corrupt JSON in {path}: {exc}") from exc
+
+
+def _clear_leftovers(final: Path) -> None:
+    """Remove what killed builds of ``final`` left: temporary folders, an entry without its spec file.
+
+    Called with ``final``'s lock held, so no live job is writing any of them.
+    """
+    parent = final.parent
+    if not parent.is_dir():
+        return
+    key = final.name
+    for p in parent.iterdir():
+        # atomic_dir's temporaries (".<key>.*.tmp"/".old") and the older ".tmp-<key>-..." folders.
+        if p.is_dir() and (p.name.startswith(f".{key}.") and p.suffix in (".tmp", ".old")
+                           or p.name.startswith(f".tmp-{key}-")):
+            shutil.rmtree(p, ignore_errors=True)
+    if final.exists() and not (final / SPEC_FILE).is_file():
+        shutil.rmtree(final)
