@@ -137,6 +137,23 @@ def expert_segments(episode) -> list[Segment]:
     return [tuple(int(v) for v in s) for s in ExpertDecomposer().decompose(episode).segments]
 
 
+def expert_plan(env_cfg: DictConfig, task: str, seed: int, labeler) -> dict[str, Any]:
+    """The scripted expert's run of (task, env seed), cut by the keyframe rule and labelled.
+
+    Recorded without images (the labeller reads the privileged record); the instructions are what
+    the policy was trained on for the same segments, so they are the oracle planner's answers.
+    """
+    from envs.expert import run_expert
+
+    opts = _env_options(env_cfg)
+    res = run_expert(task, int(seed), render=False, ticks_per_frame=int(opts.get("ticks_per_frame", 12)))
+    ep = res.episode
+    ep.meta["privileged"] = res.privileged
+    segs = expert_segments(ep)
+    return {"seed": int(seed), "expert_success": bool(res.success),
+            "instructions": [labeler.label(ep, s) for s in segs]}
+
+
 def miou(pred: Sequence[Segment], gt: Sequence[Segment]) -> float:
     """The RDD paper's mIoU of a predicted segmentation against the expert's."""
     from rdd.metrics import miou as _miou
@@ -250,6 +267,13 @@ def finetune_planner(planner_cfg: DictConfig, base_dir: Path, episodes, segments
     examples = _examples(cfg, episodes, segments, instructions, cfg.finetune)
     path = finetune_lora(cfg, _resolve(base_dir), examples, out, seed=seed, progress=False)
     write_json_atomic(out / PLANNER_FILE, {"adapter": _relative(path, out)})
+
+
+def planner_test_examples(planner_cfg: DictConfig, episodes, segments, instructions) -> list:
+    """Scoring examples: every segment start of labelled episodes, queried as in the closed loop."""
+    from planner.config import TrainSettings
+
+    return _examples(planner_config(planner_cfg), episodes, segments, instructions, TrainSettings())
 
 
 def _relative(path: Path, root: Path) -> str:

@@ -25,6 +25,9 @@ def run_episode(env: Any, seed: int, planner: Any, policy: Any, max_steps: int, 
     obs, info = env.reset(seed=int(seed))
     goal = comp.episode_goal(env, info)
     policy.reset(goal)
+    start = getattr(planner, "reset", None)  # planners that follow one episode (the oracle)
+    if start is not None:
+        start(task=comp.env_task(env), seed=int(seed), goal=goal)
     previous: str | None = None
     instructions: list[str] = []
     failure: str | None = "step limit"

@@ -19,7 +19,12 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import components as comp
-from experiments.instantiate import check_component, instantiate_component, wanted_providers
+from experiments.instantiate import (
+    check_component,
+    instantiate_component,
+    target_callable,
+    wanted_providers,
+)
 from experiments.results import (
     RESULTS_FILE,
     RESULTS_FORMAT,
@@ -274,9 +279,13 @@ class Run:
             "index": lambda: instantiate_component(self.cfg.index, "index"),
         }
 
+    def planner_learned(self) -> bool:
+        """Whether the planner is a trained model (base + LoRA stages) rather than the oracle."""
+        return bool(getattr(target_callable(self.cfg.planner, "planner"), "learned", True))
+
     def decomposer_wants(self) -> list[str]:
-        """Runtime objects the selected decomposer takes (empty for the w/o-finetune planner)."""
-        if not finetunes(self.cfg):
+        """Runtime objects the selected decomposer takes (empty when nothing is decomposed)."""
+        if not finetunes(self.cfg) or not self.planner_learned():
             return []
         return wanted_providers(self.cfg.decomposer, "decomposer", self.providers())
 
@@ -374,6 +383,29 @@ class Run:
         info["finetune"] = key
         return base_dir, path, key, info
 
+    def oracle_plans(self, seeds: list[int]) -> tuple[dict[str, dict[int, list[str]]], str, list]:
+        """The expert's labelled instructions for each evaluation task and env seed (cached per task).
+
+        Returns (task -> seed -> instructions, key over all tasks, rows with the expert's success).
+        """
+        plans: dict[str, dict[int, list[str]]] = {}
+        keys, rows = [], []
+        for task in self.eval_tasks:
+            spec = {"env": self.node("env"), "labeler": self.node("train_labeler"), "task": task,
+                    "seeds": seeds}
+
+            def build(tmp: Path, task=task) -> None:
+                labeler = self.train_labeler()
+                write_json_atomic(tmp / "plans.json", [
+                    {"task": task, **comp.expert_plan(self.cfg.env, task, s, labeler)} for s in seeds])
+
+            path, key = self.cache.get_or_build("oracle_plans", spec, build)
+            keys.append(key)
+            got = read_json(path / "plans.json")
+            rows += got
+            plans[task] = {int(r["seed"]): list(r["instructions"]) for r in got}
+        return plans, spec_key({"parts": keys}), rows
+
     def evaluation_seeds(self, n: int) -> list[int]:
         """Test-split seed indices of this run's evaluation episodes."""
         base = int(self.cfg.seed) * int(self.cfg.eval.seed_stride)
@@ -443,6 +475,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
             if results["status"] == "ok":
                 if mode == "decompose":
                     _decompose_only(run_obj, results)
+                elif mode == "planner_eval":
+                    _planner_eval(run_obj, results)
                 else:
                     _hierarchical(run_obj, results)
     except BaseException as exc:
@@ -458,7 +492,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     summary = {
         "output_dir": str(out_dir),
         "status": results["status"],
-        "main_metric": results.get("average_success", (results.get("decomposition") or {}).get("miou")),
+        "main_metric": _main_metric(results),
     }
     if cfg.print_table:
         from experiments.results import RunRecord
@@ -471,12 +505,26 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     return summary
 
 
+def _main_metric(results: dict[str, Any]) -> float | None:
+    """Average success; planner exact match for planner-eval runs; mIoU for decomposition runs."""
+    if results.get("average_success") is not None:
+        return results["average_success"]
+    pe = results.get("planner_eval") or {}
+    if pe:
+        return pe.get("finetuned_exact_match", pe.get("base_exact_match"))
+    return (results.get("decomposition") or {}).get("miou")
+
+
 def _metrics(results: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if results.get("average_success") is not None:
         out["success/average"] = results["average_success"]
     for task, row in (results.get("per_task") or {}).items():
         out[f"success/{task}"] = row["success_rate"]
+    for name in ("base", "finetuned"):
+        value = (results.get("planner_eval") or {}).get(f"{name}_exact_match")
+        if value is not None:
+            out[f"planner/{name}_exact_match"] = value
     dec = results.get("decomposition") or {}
     if dec.get("miou") is not None:
         out["decomposition/miou"] = dec["miou"]
@@ -510,17 +558,32 @@ def _hierarchical(run: Run, results: dict[str, Any]) -> None:
     from experiments.evaluation import evaluate
 
     policy_dir, policy_key = run.policy_stage()
-    base_dir, adapter_dir, planner_key, info = run.planner_stage()
-    if "decompositions" in info:
-        results["decomposition"] = _decomposition_block(info["decompositions"])
     seeds = [comp.test_seed(i) for i in run.evaluation_seeds(int(run.cfg.eval.episodes_per_task))]
+    if run.planner_learned():
+        base_dir, adapter_dir, planner_key, info = run.planner_stage()
+        if "decompositions" in info:
+            results["decomposition"] = _decomposition_block(info["decompositions"])
+        view = comp.planner_view(run.cfg.planner)
+
+        def make_planner() -> Any:
+            return comp.load_planner(run.cfg.planner, base_dir, adapter_dir)
+    else:
+        plans, planner_key, plan_rows = run.oracle_plans(seeds)
+        results["oracle"] = {"expert_success": {
+            t: float(np.mean([r["expert_success"] for r in plan_rows if r["task"] == t]))
+            for t in run.eval_tasks}}
+        planner_cls = target_callable(run.cfg.planner, "planner")
+        view = str(getattr(planner_cls, "view", "front"))
+
+        def make_planner() -> Any:
+            return instantiate_component(run.cfg.planner, "planner", plans=plans)
     loaded: dict[str, Any] = {}
 
     def models() -> tuple[Any, Any]:
         # Loaded on the first uncached task only: a finished config reruns without loading them.
         if not loaded:
             loaded["policy"] = comp.load_policy(run.cfg.policy, policy_dir, run.text_cache())
-            loaded["planner"] = comp.load_planner(run.cfg.planner, base_dir, adapter_dir)
+            loaded["planner"] = make_planner()
         return loaded["planner"], loaded["policy"]
 
     episodes: list[dict[str, Any]] = []
@@ -531,7 +594,7 @@ def _hierarchical(run: Run, results: dict[str, Any]) -> None:
         def build(tmp: Path, task=task) -> None:
             planner, policy = models()
             rows = evaluate(run.cfg.env, task, seeds, planner, policy, int(run.cfg.eval.max_steps),
-                            view=comp.planner_view(run.cfg.planner))
+                            view=view)
             write_json_atomic(tmp / "episodes.json", [r.to_dict() for r in rows])
 
         path, _ = run.cache.get_or_build("evaluation", spec, build)
@@ -546,3 +609,64 @@ def _hierarchical(run: Run, results: dict[str, Any]) -> None:
         planner=planner_key,
         policy=policy_key,
     )
+
+
+def _planner_eval(run: Run, results: dict[str, Any]) -> None:
+    """Exact match of the next instruction at the held-out test episodes' segment starts.
+
+    Base and finetuned planner are scored on the same examples: the expert-segmented, labelled
+    test-split episodes of each evaluation task, queried as in the closed loop (image, goal,
+    previous instruction), one stage per task.
+    """
+    if not run.planner_learned():
+        raise ValueError("mode=planner_eval scores a trained planner; planner=oracle has nothing to score")
+    base_dir, adapter_dir, planner_key, info = run.planner_stage()
+    if "decompositions" in info:
+        results["decomposition"] = _decomposition_block(info["decompositions"])
+    n = int(run.cfg.planner_eval.episodes_per_task)
+    loaded: dict[str, Any] = {}
+
+    def planners() -> dict[str, Any]:
+        if not loaded:
+            loaded["base"] = comp.load_planner(run.cfg.planner, base_dir, None)
+            if adapter_dir is not None:
+                loaded["finetuned"] = comp.load_planner(run.cfg.planner, base_dir, adapter_dir)
+        return loaded
+
+    rows: list[dict[str, Any]] = []
+    for task in run.eval_tasks:
+        eps, segs, instr, test_key = run.expert_labels(task, "test", n)
+        spec = {"planner": planner_key, "base": info["base"], "test": test_key}
+
+        def build(tmp: Path, eps=eps, segs=segs, instr=instr) -> None:
+            examples = comp.planner_test_examples(run.cfg.planner, eps, segs, instr)
+            out = [{"task": e.task, "episode": e.episode, "frame": int(e.frame),
+                    "previous": e.previous_instruction, "target": e.target} for e in examples]
+            for name, planner in planners().items():
+                preds, hits = planner.hits(examples)
+                for row, p, h in zip(out, preds, hits, strict=True):
+                    row[name] = p
+                    row[f"{name}_hit"] = bool(h)
+            write_json_atomic(tmp / "boundaries.json", out)
+
+        path, _ = run.cache.get_or_build("planner_eval", spec, build)
+        rows += read_json(path / "boundaries.json")
+    results.update(tasks=run.eval_tasks, planner=planner_key,
+                   planner_eval=_planner_eval_block(rows, run.eval_tasks, finetuned=adapter_dir is not None))
+
+
+def _planner_eval_block(rows: list[dict[str, Any]], tasks: list[str], finetuned: bool) -> dict[str, Any]:
+    names = ["base", "finetuned"] if finetuned else ["base"]
+    per_task = {}
+    for task in tasks:
+        rs = [r for r in rows if r["task"] == task]
+        per_task[task] = {"boundaries": len(rs),
+                          **{n: float(np.mean([r[f"{n}_hit"] for r in rs])) if rs else None for n in names}}
+    block: dict[str, Any] = {
+        "per_task": per_task,
+        "boundaries": len(rows),
+        **{f"{n}_exact_match": float(np.mean([r[f"{n}_hit"] for r in rows])) if rows else None
+           for n in names},
+        "misses": [r for r in rows if not r.get("finetuned_hit", r["base_hit"])],
+    }
+    return block

@@ -121,6 +121,8 @@ def method_label(overrides: Iterable[str], choices: dict[str, Any]) -> str:
         parts.append(value if "." not in key else f"{key.rsplit('.', 1)[-1]}={value}")
     if parts:
         return ", ".join(parts)
+    if choices.get("planner") == "oracle":
+        return "oracle"  # nothing is decomposed: the planner plays back the expert's instructions
     return str(choices.get("decomposer", "run"))
 
 

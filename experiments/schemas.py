@@ -22,6 +22,8 @@ class Mode(Enum):
     hierarchical = "hierarchical"  # full pipeline and closed-loop evaluation (success rates)
     decompose = "decompose"  # decompose the validation demos only (mIoU against the expert)
     speed = "speed"  # solver wall time versus number of frames, with and without L_max
+    # next-instruction exact match of the base and finetuned planner on held-out test episodes
+    planner_eval = "planner_eval"
 
 
 @dataclass
@@ -48,6 +50,14 @@ class EvalConfig:
     max_steps: int = 25
     # Evaluation episode i of run seed s uses test-split seed index s * seed_stride + i.
     seed_stride: int = 1000
+
+
+@dataclass
+class PlannerEvalConfig:
+    """mode=planner_eval: which held-out episodes score the planner."""
+
+    # test-split expert demos per evaluation task; every segment start is one scored query
+    episodes_per_task: int = 10
 
 
 @dataclass
@@ -97,6 +107,7 @@ class RunConfig:
     data: DataConfig = field(default_factory=DataConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     speed: SpeedConfig = field(default_factory=SpeedConfig)
+    planner_eval: PlannerEvalConfig = field(default_factory=PlannerEvalConfig)
     wandb: WandbConfig = field(default_factory=WandbConfig)
     paths: PathsConfig = field(default_factory=PathsConfig)
     # Component groups: ``_target_`` nodes filled from conf/<group>/<option>.yaml.

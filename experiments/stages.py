@@ -41,13 +41,16 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 # covered by that stage's key, which the downstream spec contains.
 STAGE_CODE: dict[str, tuple[str, ...]] = {
     "demos": ("envs", "rdd/data"),
-    "expert_labels": ("experiments/labeler.py", "experiments/retrieval_labeler.py", "rdd/segments.py"),
+    "expert_labels": ("envs/labeler.py", "rdd/retrieval_labeler.py", "rdd/segments.py",
+                      "rdd/decomposers/expert.py"),
+    "oracle_plans": ("envs", "rdd/decomposers/expert.py", "rdd/segments.py"),
     "policy": ("policy", "envs"),
     "database": ("rdd/database.py", "rdd/index", "rdd/encoders", "rdd/data"),
-    "decompositions": ("rdd", "experiments/labeler.py", "experiments/retrieval_labeler.py"),
+    "decompositions": ("rdd", "envs/labeler.py", "rdd/retrieval_labeler.py"),
     "planner_base": ("planner",),
     "planner_finetune": ("planner",),
     "evaluation": ("experiments/evaluation.py", "envs", "policy", "planner"),
+    "planner_eval": ("planner",),
 }
 
 

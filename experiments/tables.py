@@ -6,6 +6,7 @@
 - an mIoU table (decomposition against the expert on the validation demonstrations);
 - paired differences of each method's average success to a reference method (rdd by default) with
   95% bootstrap intervals over the shared seeded episodes (``experiments.stats``);
+- a planner table (mode=planner_eval runs): next-instruction exact match, base and finetuned;
 - a solver-speed table (mode=speed runs);
 - PNG plots: success per task and method, and solver time versus frames.
 Skipped runs (e.g. an encoder without weights) are listed under the tables with their reason.
@@ -245,6 +246,37 @@ def miou_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     return Table(title, header, rows, bold, note)
 
 
+def planner_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
+    """Planner-only runs: next-instruction exact match per task, base and finetuned, over seeds."""
+    runs = [r for r in runs if r.status == "ok" and (r.data.get("planner_eval") or {}).get("per_task")]
+    if not runs:
+        return None
+    by_key = _latest_per_method_seed(runs)
+    tasks = _tasks_in_order(run.data["planner_eval"]["per_task"] for run in runs)
+    header = ["Method", "Planner", "All tasks ↑", *tasks]
+    rows, means = [], []
+    for m in _methods_in_order(runs):
+        mruns = [r for (mm, _), r in by_key.items() if mm == m]
+        for name in ("base", "finetuned"):
+            if not any(r.data["planner_eval"].get(f"{name}_exact_match") is not None for r in mruns):
+                continue
+            mean, std = mean_std([float(r.data["planner_eval"][f"{name}_exact_match"]) for r in mruns])
+            means.append(mean)
+            row = [m, name, _pm(mean, std)]
+            for task in tasks:
+                vals = [float(r.data["planner_eval"]["per_task"][task][name]) for r in mruns
+                        if task in r.data["planner_eval"]["per_task"]]
+                row.append(_pm(*mean_std(vals)))
+            rows.append(row)
+    best = np.nanmax(means)
+    bold = {(i, 2) for i, v in enumerate(means) if v == best}
+    counts = sorted({int(r.data["planner_eval"]["boundaries"]) for r in runs})
+    seeds = sorted({r.seed for r in runs})
+    note = (f"Exact match (%) of the next instruction at {'/'.join(map(str, counts))} segment starts "
+            f"of held-out test-split episodes; {len(seeds)} seed(s) {seeds}; ± is the sample std over seeds.")
+    return Table(title, header, rows, bold, note)
+
+
 def speed_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     """Solver wall time versus number of frames, with and without L_max."""
     runs = [r for r in runs if r.status == "ok" and r.data.get("speed")]
@@ -373,6 +405,7 @@ def build_tables(runs: Sequence[RunRecord]) -> dict[str, list[Table]]:
             success_table(title, eruns),
             paired_table(f"{title}: paired differences", eruns, REFERENCE.get(exp, DEFAULT_REFERENCE)),
             miou_table(f"{title}: decomposition mIoU against the expert", eruns),
+            planner_table(f"{title}: planner next-instruction exact match", eruns),
             speed_table(f"{title}: solver time", eruns),
         ]
         out[exp] = [t for t in tables if t is not None]

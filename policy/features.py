@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from experiments.labeler import object_label
+from envs.labeler import object_label
 from rdd.data.episode import Episode
 
 GRIPPER_ANCHOR = "the gripper"

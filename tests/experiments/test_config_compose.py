@@ -49,7 +49,8 @@ def providers():
         return load_index("exact")
 
     return {"encoder": lambda: enc, "database": lambda: db, "cache": lambda: None,
-            "views": lambda: ("front", "wrist"), "index": index, "backend": index}
+            "views": lambda: ("front", "wrist"), "index": index, "backend": index,
+            "plans": lambda: {"open_drawer": {0: ["reach for the top drawer handle"]}}}
 
 
 @pytest.mark.parametrize("group,option", [(g, o) for g in GROUPS for o in _options(g)])

