@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 # Constraints apply to build environments too, so no dependency can move torch off the CPU wheel.
 export PIP_CONSTRAINT := $(CURDIR)/constraints.txt
 
-.PHONY: install run test test-slow lint bench clean
+.PHONY: install run test test-slow lint bench reproduce clean
 
 install: $(STAMP)
 
@@ -29,6 +29,11 @@ test-slow: $(STAMP)
 
 lint: $(STAMP)
 	$(PY) -m ruff check .
+
+# Every table of the paper (SCALE=default|paper); resumes, and a finished table is not rerun.
+SCALE ?= default
+reproduce: $(STAMP)
+	$(PY) -m experiments.reproduce --scale $(SCALE)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_decompose.py

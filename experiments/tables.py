@@ -225,7 +225,13 @@ def miou_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     methods = _methods_in_order(runs)
     by_key = _latest_per_method_seed(runs)
     tasks = _tasks_in_order(run.data["decomposition"]["per_task"] for run in runs)
+    demos = {m: [d for (mm, _), r in by_key.items() if mm == m for d in r.data["decomposition"].get("demos", [])]
+             for m in methods}
+    with_time = any("seconds" in d for ds in demos.values() for d in ds)
+    with_novelty = any(d.get("novelty") is not None for ds in demos.values() for d in ds)
     header = ["Method", "Avg. mIoU ↑", *tasks]
+    header += ["s / demo"] if with_time else []
+    header += ["novelty Δ"] if with_novelty else []
     rows, means = [], []
     for m in methods:
         mruns = [r for (mm, _), r in by_key.items() if mm == m]
@@ -237,12 +243,20 @@ def miou_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
             vals = [float(r.data["decomposition"]["per_task"][task]) for r in mruns
                     if task in r.data["decomposition"]["per_task"]]
             row.append(_pm(*mean_std(vals)))
+        if with_time:
+            secs = [float(d["seconds"]) for d in demos[m] if "seconds" in d]
+            row.append(f"{np.mean(secs):.3f}" if secs else "–")
+        if with_novelty:
+            nov = [float(d["novelty"]) for d in demos[m] if d.get("novelty") is not None]
+            row.append(_pm(*mean_std(nov), scale=1.0, digits=3) if nov else "–")
         rows.append(row)
     best = np.nanmax(means)
     bold = {(i, 1) for i, v in enumerate(means) if v == best}
-    demos = sorted({int(r.data["decomposition"].get("num_demos", 0)) for r in runs})
+    n_demos = sorted({int(r.data["decomposition"].get("num_demos", 0)) for r in runs})
     note = (f"mIoU (%) of each decomposition against the expert keyframe segmentation on "
-            f"{'/'.join(map(str, demos))} validation demonstration(s); ± is the sample std over seeds.")
+            f"{'/'.join(map(str, n_demos))} validation demonstration(s); ± is the sample std over seeds."
+            + (" s / demo: mean wall time of one decomposition." if with_time else "")
+            + (" novelty Δ: mean ± std over demos of RDD's novelty score (paper Eq. 3.6)." if with_novelty else ""))
     return Table(title, header, rows, bold, note)
 
 

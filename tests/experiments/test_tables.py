@@ -122,3 +122,21 @@ def test_labels_come_from_the_swept_overrides(tmp_path: Path):
     single = [rec(["seed=3"])]
     assign_labels(single)
     assert single[0].method == "rdd"
+
+
+def test_miou_table_time_and_novelty_columns(tmp_path: Path):
+    # rdd: demos take 0.2 and 0.4 s (mean 0.300) with novelty 0.1 and 0.3 (0.200 ± 0.141);
+    # uniform: 0.010 s, no novelty ("–").
+    _write_run(tmp_path, "0", "rdd", 0, {"t1": [True]}, miou={"t1": 0.5})
+    _write_run(tmp_path, "1", "uniform", 0, {"t1": [False]}, miou={"t1": 0.25})
+    for name, demos in (("0", [(0.2, 0.1), (0.4, 0.3)]), ("1", [(0.01, None)])):
+        path = tmp_path / name / "results.json"
+        data = json.loads(path.read_text())
+        data["decomposition"]["demos"] = [{"task": "t1", "seconds": s, "novelty": n} for s, n in demos]
+        path.write_text(json.dumps(data))
+    md, _ = write_tables(tmp_path, tmp_path / "out")
+    miou_md = md.split("decomposition mIoU")[1]
+    lines = {line.split(" | ")[0].strip("| *"): line for line in miou_md.splitlines() if line.startswith("| ")}
+    assert "s / demo" in lines["Method"] and "novelty Δ" in lines["Method"]
+    assert lines["rdd"].rstrip(" |").endswith("0.300 | 0.200 ± 0.141")
+    assert lines["uniform"].rstrip(" |").endswith("0.010 | –")

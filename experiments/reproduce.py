@@ -1,0 +1,246 @@
+"""Every table of the paper with one command: ``python -m experiments.reproduce [--scale default|paper]``.
+
+A scale is a plan, ``conf/reproduce/<scale>.yaml``: one entry per table, each a Hydra multirun of
+``run.py`` (an experiment config plus extra command-line overrides). Tables run one after another;
+all of them share the stage cache, so a stage that several tables need (demonstrations, policy,
+database, base planner, ...) is built once. A finished table leaves ``DONE.json`` beside its runs
+(the command, commit, wall time): a rerun with the same command skips it and does no work; a table
+that was interrupted is run again, and its jobs that had finished find every stage in the cache.
+Outputs, under ``--out`` (default ``outputs/reproduce/<scale>``):
+
+- ``runs/<table>/<job>/results.json``: every number, traceable to its seeds, episodes and config;
+- ``tables/<table>/<experiment>.{md,tex}`` and PNG plots (``experiments.tables``);
+- ``summary.md`` and ``reproduce.json``: all tables, with each table's command and wall time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rdd.atomic import write_json_atomic, write_text_atomic
+
+log = logging.getLogger("experiments.reproduce")
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+PLANS_DIR = REPO_ROOT / "conf" / "reproduce"
+DONE_FILE = "DONE.json"
+
+
+class PlanError(ValueError):
+    """A plan file that cannot be used (missing, malformed, or naming an unknown experiment)."""
+
+
+@dataclass(frozen=True)
+class TablePlan:
+    """One table: a multirun of ``experiment`` with extra overrides."""
+
+    name: str
+    experiment: str
+    overrides: tuple[str, ...] = ()
+    description: str = ""
+
+    def command(self, sweep_dir: Path, cache_dir: Path | None) -> list[str]:
+        """The ``run.py`` command line of this table's multirun."""
+        # run.py relative to the repository root (the child's working directory), so the recorded
+        # command is the one a reader types.
+        cmd = [sys.executable, "run.py", "-m", f"experiment={self.experiment}",
+               *self.overrides, f"hydra.sweep.dir={sweep_dir}"]
+        if cache_dir is not None:
+            cmd.append(f"paths.cache_dir={cache_dir}")
+        return cmd
+
+
+@dataclass
+class Plan:
+    """A scale: its tables in the order they run."""
+
+    scale: str
+    tables: list[TablePlan] = field(default_factory=list)
+
+
+def available_scales() -> list[str]:
+    """Names of the plans in ``conf/reproduce``."""
+    return sorted(p.stem for p in PLANS_DIR.glob("*.yaml"))
+
+
+def load_plan(path: Path) -> Plan:
+    """Read and validate a plan file (``tables: {name: {experiment, overrides, description}}``)."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except FileNotFoundError as exc:
+        raise PlanError(f"plan {path}: no such file (scales: {available_scales()})") from exc
+    except yaml.YAMLError as exc:
+        raise PlanError(f"plan {path}: not valid YAML: {exc}") from exc
+    if not isinstance(data, dict) or not isinstance(data.get("tables"), dict) or not data["tables"]:
+        raise PlanError(f"plan {path}: expected a non-empty mapping under 'tables'")
+    experiments = {p.stem for p in (REPO_ROOT / "conf" / "experiment").glob("*.yaml")}
+    tables = []
+    for name, entry in data["tables"].items():
+        where = f"plan {path}: tables.{name}"
+        if not isinstance(entry, dict):
+            raise PlanError(f"{where}: expected a mapping with 'experiment'")
+        unknown = set(entry) - {"experiment", "overrides", "description"}
+        if unknown:
+            raise PlanError(f"{where}: unknown key(s) {sorted(unknown)} (allowed: experiment, overrides, description)")
+        exp = entry.get("experiment")
+        if exp not in experiments:
+            raise PlanError(f"{where}.experiment: {exp!r} is not in conf/experiment ({sorted(experiments)})")
+        overrides = entry.get("overrides") or []
+        if not isinstance(overrides, list) or not all(isinstance(o, str) for o in overrides):
+            raise PlanError(f"{where}.overrides: expected a list of strings")
+        for o in overrides:
+            if o.startswith(("hydra.sweep.dir", "paths.cache_dir", "experiment=")):
+                raise PlanError(f"{where}.overrides: {o!r} is set by the driver")
+        tables.append(TablePlan(str(name), exp, tuple(overrides), str(entry.get("description", ""))))
+    return Plan(Path(path).stem, tables)
+
+
+def _commit() -> str:
+    try:
+        out = subprocess.run(["git", "-C", str(REPO_ROOT), "rev-parse", "HEAD"], capture_output=True,
+                             text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(REPO_ROOT), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+        return out + ("+dirty" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def _done(sweep_dir: Path, command: list[str]) -> dict[str, Any] | None:
+    """The finished-table record if this command already completed here."""
+    path = sweep_dir / DONE_FILE
+    try:
+        data = json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
+    return data if data.get("command") == command[1:] else None
+
+
+def run_table(table: TablePlan, out: Path, cache_dir: Path | None, force: bool = False) -> dict[str, Any]:
+    """Run one table's multirun (unless already done), then write its tables; its record."""
+    from experiments.tables import write_tables
+
+    sweep_dir = out / "runs" / table.name
+    command = table.command(sweep_dir, cache_dir)
+    record = None if force else _done(sweep_dir, command)
+    if record is not None:
+        log.info("%s: already done (%.0f s when it ran); skipped", table.name, record["seconds"])
+        return {**record, "reused": True}
+    log_path = out / "logs" / f"{table.name}.log"
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    log.info("%s: running %s (log: %s)", table.name, shlex.join(command[1:]), log_path)
+    start = time.perf_counter()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")])}
+    with open(log_path, "a") as fh:
+        fh.write(f"\n$ {shlex.join(command)}\n")
+        fh.flush()
+        proc = subprocess.run(command, cwd=REPO_ROOT, stdout=fh, stderr=subprocess.STDOUT, env=env)
+    seconds = time.perf_counter() - start
+    if proc.returncode != 0:
+        raise RuntimeError(f"table {table.name}: run.py exited with {proc.returncode} after {seconds:.0f} s; "
+                           f"see {log_path}")
+    _md, written = write_tables(sweep_dir, out / "tables" / table.name)
+    record = {"table": table.name, "experiment": table.experiment, "command": command[1:],
+              "commit": _commit(), "seconds": seconds, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+              "outputs": [str(p.relative_to(out)) for p in written]}
+    write_json_atomic(sweep_dir / DONE_FILE, record)
+    log.info("%s: done in %.0f s", table.name, seconds)
+    return {**record, "reused": False}
+
+
+def summary_markdown(plan: Plan, records: Sequence[dict[str, Any]], out: Path) -> str:
+    """All tables of a plan in one Markdown page, each with its command and wall time."""
+    lines = [f"# Reproduction at scale `{plan.scale}`", "",
+             f"Hardware: {os.cpu_count()} CPU cores, {platform.machine()}, Python {platform.python_version()}.",
+             "", "| table | experiment | wall time (min) | commit |", "|---|---|--:|---|"]
+    for r in records:
+        lines.append(f"| {r['table']} | {r['experiment']} | {r['seconds'] / 60:.1f} | {r['commit'][:12]} |")
+    total = sum(r["seconds"] for r in records)
+    lines += ["", f"Total wall time of the runs: {total / 60:.1f} min.", ""]
+    for table, r in zip(plan.tables, records, strict=True):
+        lines += [f"## {table.name}", ""]
+        if table.description:
+            lines += [table.description, ""]
+        lines += ["```", "python " + shlex.join(r["command"]), "```", ""]
+        for md in sorted((out / "tables" / table.name).glob("*.md")):
+            lines.append(md.read_text())
+        for png in sorted((out / "tables" / table.name).glob("*.png")):
+            lines.append(f"![{png.stem}]({png.relative_to(out)})\n")
+    return "\n".join(lines)
+
+
+def reproduce(plan: Plan, out: Path, cache_dir: Path | None = None, only: Sequence[str] = (),
+              force: bool = False) -> list[dict[str, Any]]:
+    """Run every table of ``plan`` (or those in ``only``) and write the summary; the records."""
+    names = [t.name for t in plan.tables]
+    unknown = [n for n in only if n not in names]
+    if unknown:
+        raise PlanError(f"--only {unknown}: not in the {plan.scale} plan ({names})")
+    tables = [t for t in plan.tables if not only or t.name in only]
+    from tqdm import tqdm
+
+    records = []
+    bar = tqdm(tables, desc=f"reproduce ({plan.scale})", unit="table", disable=None)
+    for table in bar:
+        bar.set_postfix_str(table.name)
+        records.append(run_table(table, out, cache_dir, force=force))
+    sub = Plan(plan.scale, tables)
+    write_text_atomic(out / "summary.md", summary_markdown(sub, records, out))
+    write_json_atomic(out / "reproduce.json", {"scale": plan.scale, "tables": records})
+    return records
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """CLI entry point."""
+    parser = argparse.ArgumentParser(prog="python -m experiments.reproduce", description=__doc__.split("\n")[0])
+    parser.add_argument("--scale", default="default",
+                        help=f"plan in conf/reproduce ({', '.join(available_scales())}); default: default")
+    parser.add_argument("--plan", type=Path, default=None, help="a plan file instead of --scale")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default outputs/reproduce/<scale>)")
+    parser.add_argument("--cache-dir", type=Path, default=None,
+                        help="stage cache shared by every table (default: run.py's, $RDD_CACHE_DIR or .cache/rdd)")
+    parser.add_argument("--only", nargs="+", default=(), metavar="TABLE", help="run these tables only")
+    parser.add_argument("--force", action="store_true", help="rerun tables already marked done")
+    parser.add_argument("--dry-run", action="store_true", help="print the commands and exit")
+    parser.add_argument("-v", "--verbose", action="store_true", help="full tracebacks")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    try:
+        plan = load_plan(args.plan or PLANS_DIR / f"{args.scale}.yaml")
+        out = (args.out or REPO_ROOT / "outputs" / "reproduce" / plan.scale).resolve()
+        cache = args.cache_dir.resolve() if args.cache_dir else None
+        if args.dry_run:
+            for t in plan.tables:
+                if not args.only or t.name in args.only:
+                    print(shlex.join(["python", *t.command(out / "runs" / t.name, cache)[1:]]))
+            return 0
+        records = reproduce(plan, out, cache, only=args.only, force=args.force)
+    except (PlanError, RuntimeError, FileNotFoundError, ValueError) as exc:
+        if args.verbose:
+            raise
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted: finished tables are kept; rerun the same command to resume", file=sys.stderr)
+        return 130
+    total = sum(r["seconds"] for r in records if not r["reused"])
+    print(f"{len(records)} table(s) in {out} ({total / 60:.1f} min of new runs); summary: {out / 'summary.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,107 @@
+"""The reproduce driver: plan validation, and at smoke scale two tables, a kill, a resume, a no-op rerun."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from experiments.reproduce import PLANS_DIR, PlanError, available_scales, load_plan, main
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_shipped_plans_load_and_name_real_experiments():
+    assert {"default", "paper", "smoke"} <= set(available_scales())
+    for scale in available_scales():
+        plan = load_plan(PLANS_DIR / f"{scale}.yaml")
+        assert plan.tables, scale
+    default = [t.name for t in load_plan(PLANS_DIR / "default.yaml").tables]
+    assert default[0] == "table_main"
+    assert {"abl_alpha", "abl_encoder", "abl_demos", "abl_ood_beta", "abl_backend"} <= set(default)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("tables: {}", "non-empty mapping under 'tables'"),
+        ("tables: {a: {experiment: no_such}}", "tables.a.experiment: 'no_such' is not in conf/experiment"),
+        ("tables: {a: {experiment: smoke, sweep: 1}}", "tables.a: unknown key(s) ['sweep']"),
+        ("tables: {a: {experiment: smoke, overrides: [paths.cache_dir=/x]}}", "set by the driver"),
+        ("tables: {a: {experiment: smoke, overrides: seed=1}}", "tables.a.overrides: expected a list"),
+        ("tables: [", "not valid YAML"),
+    ],
+)
+def test_bad_plans_fail_with_the_key_at_fault(tmp_path: Path, text: str, message: str):
+    plan = tmp_path / "p.yaml"
+    plan.write_text(text)
+    with pytest.raises(PlanError, match=r".*".join(map(__import__("re").escape, [str(plan), message]))):
+        load_plan(plan)
+
+
+def test_cli_errors_are_one_line(tmp_path: Path, capsys):
+    assert main(["--scale", "nope"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "nope.yaml" in err and "scales:" in err
+    assert main(["--scale", "smoke", "--only", "missing", "--out", str(tmp_path)]) == 2
+    assert "missing" in capsys.readouterr().err
+
+
+def test_dry_run_prints_one_multirun_per_table(capsys):
+    assert main(["--scale", "smoke", "--dry-run", "--out", "/x", "--cache-dir", "/c"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 2
+    assert "-m experiment=smoke decomposer=expert,uniform seed=0" in lines[0]
+    assert lines[1].endswith("hydra.sweep.dir=/x/runs/smoke_uniform paths.cache_dir=/c")
+
+
+def _driver(out: Path, cache: Path) -> subprocess.Popen:
+    env = {**os.environ, "WANDB_MODE": "disabled", "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen(
+        [sys.executable, "-m", "experiments.reproduce", "--scale", "smoke", "--out", str(out),
+         "--cache-dir", str(cache)],
+        cwd=ROOT, env=env, text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        start_new_session=True,  # its own process group, so the kill reaches run.py and its workers
+    )
+
+
+@pytest.mark.slow
+def test_two_tables_killed_then_resumed_then_no_work(tmp_path: Path):
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    first = _driver(out, cache)
+    done_main = out / "runs" / "smoke_main" / "DONE.json"
+    deadline = time.time() + 1500
+    while not done_main.exists() and first.poll() is None and time.time() < deadline:
+        time.sleep(0.2)
+    assert done_main.exists(), first.communicate()[0][-3000:]
+    os.killpg(first.pid, signal.SIGKILL)  # killed while the second table runs (or just before)
+    first.wait()
+    assert not (out / "runs" / "smoke_uniform" / "DONE.json").exists()
+
+    second = _driver(out, cache)
+    text = second.communicate(timeout=1500)[0]
+    assert second.returncode == 0, text[-3000:]
+    records = {r["table"]: r for r in json.loads((out / "reproduce.json").read_text())["tables"]}
+    assert records["smoke_main"]["reused"] and not records["smoke_uniform"]["reused"]
+    summary = (out / "summary.md").read_text()
+    assert "## smoke_main" in summary and "## smoke_uniform" in summary
+    # each table's runs: smoke_main has expert and uniform, smoke_uniform has n_segments 2 and 3
+    main_md = next((out / "tables" / "smoke_main").glob("*.md")).read_text()
+    assert "| expert" in main_md.replace("**", "") and "| uniform" in main_md.replace("**", "")
+    abl_md = next((out / "tables" / "smoke_uniform").glob("*.md")).read_text()
+    assert "n_segments=2" in abl_md and "n_segments=3" in abl_md
+    assert (out / "tables" / "smoke_main").glob("*.tex")
+
+    before = {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("results.json")}
+    third = _driver(out, cache)
+    text = third.communicate(timeout=300)[0]
+    assert third.returncode == 0, text[-3000:]
+    records = json.loads((out / "reproduce.json").read_text())["tables"]
+    assert all(r["reused"] for r in records)
+    assert {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("results.json")} == before
