@@ -1,24 +1,30 @@
 """``python -m rdd``: build a sub-task database, decompose demonstrations, evaluate, plot.
 
-Subcommands: ``build-db``, ``decompose``, ``evaluate``, ``plot``, ``demo``. Every failure is
-reported as one line naming the file or option at fault, with exit status 2.
+Subcommands: ``build-db``, ``decompose``, ``evaluate``, ``plot``, ``demo``. Every expected failure
+is reported as one line naming the file or option at fault, with exit status 2 (``-v`` also prints
+the traceback); Ctrl-C stops with status 130 and leaves no partial output. Outputs are written
+atomically and never replace an existing file or folder without ``--force``.
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import logging
-import os
+import pickle
 import sys
-import tempfile
+import traceback
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from rdd.atomic import TargetExistsError
+from rdd.atomic import write_json_atomic as _write_json
 from rdd.data.episode import Episode
 from rdd.data.load import FORMATS
 from rdd.encoders.embed import DEFAULT_VIEWS
+from rdd.progress import track_episodes
 
 log = logging.getLogger("rdd")
 DECOMPOSERS = ("rdd", "uvd", "uniform", "expert", "vlm")
@@ -58,28 +64,23 @@ def dumps_compact(data: Any) -> str:
     return json.dumps(data, indent=1) + "\n"
 
 
-def write_json_atomic(path: str | Path, data: Any) -> Path:
-    """Write ``data`` as JSON to ``path`` through a temporary file and a rename."""
+def check_output(path: str | Path | None, flag: str, force: bool, kind: str = "file") -> Path | None:
+    """Refuse an output path that is a folder (for files), a file (for folders), or exists without --force."""
+    if path is None:
+        return None
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(dumps_compact(data))
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    if kind == "file" and path.is_dir():
+        raise CLIError(f"{flag} {path}: is an existing folder; give a file name")
+    if kind == "dir" and path.exists() and not path.is_dir():
+        raise CLIError(f"{flag} {path}: is an existing file; give a folder name")
+    if path.exists() and not force:
+        raise CLIError(f"{flag} {path}: already exists; pass --force to replace it")
     return path
 
 
-def progress(items, desc: str):
-    """A tqdm progress bar on stderr (silent when tqdm is missing)."""
-    try:
-        from tqdm import tqdm
-    except ImportError:
-        return items
-    return tqdm(items, desc=desc, unit="ep", file=sys.stderr, disable=None)
+def write_json_atomic(path: str | Path, data: Any, overwrite: bool = True) -> Path:
+    """Write ``data`` as compact JSON to ``path`` atomically (``rdd.atomic``)."""
+    return _write_json(path, data, overwrite=overwrite, dumps=dumps_compact)
 
 
 def load_data(args: argparse.Namespace) -> list[Episode]:
@@ -92,7 +93,15 @@ def load_data(args: argparse.Namespace) -> list[Episode]:
     try:
         episodes = load_episodes(args.format, args.data, **options)
     except TypeError as exc:
-        raise CLIError(f"--reader-option: {exc}") from exc
+        raise CLIError(f"--reader-option for --format {args.format}: {exc}".replace("load_episodes() ", "")) from exc
+    except ValueError as exc:
+        if "reader option" in str(exc):
+            raise CLIError(f"--reader-option: {exc}") from exc
+        raise
+    if args.format == "lerobot" and episodes:
+        from rdd.data.lerobot import describe_layout
+
+        print(f"lerobot: {describe_layout(episodes[0])}", file=sys.stderr)
     names = [e.name for e in episodes]
     for flag, wanted in (("--include", args.include), ("--exclude", args.exclude)):
         unknown = sorted(set(wanted or ()) - set(names))
@@ -144,65 +153,114 @@ def make_cache(args: argparse.Namespace):
     return EmbeddingCache(args.cache_dir)
 
 
-def expert_decomposer(args: argparse.Namespace):
+def expert_decomposer(args: argparse.Namespace, options: dict[str, Any] | None = None):
+    """The expert rule with ``--stopping-delta``/``--velocity-source`` and any ``--option``."""
+    from rdd.decomposers.base import check_option_names
     from rdd.decomposers.expert import ExpertDecomposer
 
-    return ExpertDecomposer(stopping_delta=args.stopping_delta, velocity_source=args.velocity_source)
+    options = dict(options or {})
+    options.setdefault("stopping_delta", args.stopping_delta)
+    options.setdefault("velocity_source", args.velocity_source)
+    try:
+        check_option_names(ExpertDecomposer, options)
+        return ExpertDecomposer(**options)
+    except ValueError as exc:
+        raise CLIError(f"--option: {exc}") from exc
+
+
+def embed_all(episodes: Sequence[Episode], encoder, views: Sequence[str], cache) -> None:
+    """Fill the embedding cache episode by episode so the progress bar shows the slow part."""
+    if cache is None:
+        return
+    from rdd.encoders.embed import episode_frame_vectors
+
+    for ep in track_episodes(episodes, f"embedding ({encoder.name})"):
+        episode_frame_vectors(ep, encoder, views=views, cache=cache)
+
+
+def save_database(db, out: Path, force: bool) -> Path:
+    """``db.save`` refusing to replace an existing database unless ``force``."""
+    if "overwrite" in inspect.signature(db.save).parameters:
+        return db.save(out, overwrite=force)
+    # SubtaskDatabase.save without its own overwrite guard: check here (racy between writers).
+    if out.exists() and not force:
+        raise TargetExistsError(f"{out} already exists (refusing to replace it)")
+    return db.save(out)
 
 
 # ----------------------------------------------------------------------------- build-db
 def cmd_build_db(args: argparse.Namespace) -> int:
-    """Segment episodes with the expert rule and build the sub-task database."""
+    """Segment episodes (their sub-task annotations or the expert rule) and build the database."""
     from rdd.database import SubtaskDatabase
 
+    out = check_output(args.out, "--out", args.force, kind="dir")
     episodes = load_data(args)
     views = resolve_views(args.views, episodes[0])
     encoder = make_encoder(args.encoder, parse_options(args.encoder_option, "--encoder-option"))
-    expert = expert_decomposer(args)
-    segmentations = []
-    for ep in progress(episodes, "expert segments"):
-        try:
-            segmentations.append(expert.decompose(ep).segments)
-        except ValueError as exc:
-            raise CLIError(f"--data {args.data}: {exc}") from exc
+    annotated = [e for e in episodes if e.segments is not None]
+    source = args.segments
+    if source == "auto":
+        source = "subtasks" if annotated and len(annotated) == len(episodes) else "expert"
+        if annotated and len(annotated) != len(episodes):
+            log.warning("only %d of %d episodes carry sub-task annotations; using the expert rule for all "
+                        "(pass --segments subtasks to require them)", len(annotated), len(episodes))
+    if source == "subtasks":
+        missing = [e.name for e in episodes if e.segments is None]
+        if missing:
+            raise CLIError(f"--segments subtasks: episodes {missing} of --data {args.data} carry no sub-task "
+                           "annotations (LeRobot: language_persistent subtask rows)")
+        segmentations = [e.segments for e in episodes]
+        instructions = [e.instructions or [""] * len(e.segments) for e in episodes]
+    else:
+        expert = expert_decomposer(args)
+        segmentations = []
+        for ep in episodes:
+            try:
+                segmentations.append(expert.decompose(ep).segments)
+            except ValueError as exc:
+                raise CLIError(f"--data {args.data}: {exc}") from exc
+        instructions = None
+    print(f"segments: {source} ({sum(len(s) for s in segmentations)} sub-tasks in {len(episodes)} episodes)",
+          file=sys.stderr)
     cache = make_cache(args)
-    if cache is not None:
-        from rdd.encoders.embed import episode_frame_vectors
-
-        # Fill the cache episode by episode so the progress bar shows the slow part (encoding).
-        for ep in progress(episodes, f"embedding ({encoder.name})"):
-            episode_frame_vectors(ep, encoder, views=views, cache=cache)
-    db = SubtaskDatabase.build(episodes, segmentations, encoder, views=views, cache=cache)
+    embed_all(episodes, encoder, views, cache)
+    db = SubtaskDatabase.build(episodes, segmentations, encoder, views=views, cache=cache,
+                               instructions=instructions)
     db.meta["source"] = {"format": args.format, "data": str(args.data),
-                         "episodes": [e.name for e in episodes], "segmenter": "expert"}
-    out = db.save(args.out)
+                         "episodes": [e.name for e in episodes], "segmenter": source}
+    out = save_database(db, out, args.force)
     print(f"built database {out}: {len(db)} sub-tasks from {len(episodes)} episodes "
-          f"(encoder {encoder.name}, views {list(views)})")
+          f"(encoder {encoder.name}, views {list(views)}, segments {source})")
     return 0
 
 
 # ----------------------------------------------------------------------------- decompose
 def make_decomposer(args: argparse.Namespace, first: Episode):
     """The decomposer named by ``--decomposer`` with its options; also the config to record."""
+    from rdd.decomposers.base import check_option_names
+
     options = parse_options(args.option, "--option")
     config: dict[str, Any] = {"decomposer": args.decomposer, "options": options}
     name = args.decomposer
     try:
         if name == "expert":
             config.update(stopping_delta=args.stopping_delta, velocity_source=args.velocity_source)
-            return expert_decomposer(args), config
+            return expert_decomposer(args, options), config
         if name == "uniform":
             from rdd.decomposers.uniform import UniformDecomposer
 
+            check_option_names(UniformDecomposer, options)
             return UniformDecomposer(**options), config
         if name == "vlm":
             from rdd.decomposers.vlm import VLMDecomposer
 
+            check_option_names(VLMDecomposer, options, reserved=("views",))
             return VLMDecomposer(views=args.views or None, **options), config
         cache = make_cache(args)
         if name == "uvd":
             from rdd.decomposers.uvd import UVDDecomposer
 
+            check_option_names(UVDDecomposer, options, reserved=("encoder", "views", "cache"))
             views = resolve_views(args.views, first)
             encoder = make_encoder(args.encoder or "effnet_lite0",
                                    parse_options(args.encoder_option, "--encoder-option"))
@@ -214,6 +272,7 @@ def make_decomposer(args: argparse.Namespace, first: Episode):
 
             if not args.db:
                 raise CLIError("--decomposer rdd needs --db DIR (build one with `python -m rdd build-db`)")
+            check_option_names(RDDDecomposer, options, reserved=("database", "encoder", "views", "cache"))
             db = SubtaskDatabase.load(args.db)
             enc_name = args.encoder or db.meta.get("encoder")
             if not enc_name:
@@ -230,43 +289,103 @@ def make_decomposer(args: argparse.Namespace, first: Episode):
                           db=str(args.db), db_fingerprint=db.fingerprint(), db_size=len(db),
                           alpha=dec.alpha, max_len=dec.max_len, mode=dec.mode, backend=dec.index.name)
             return dec, config
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, ValueError) and "option" not in str(exc) and "must be" not in str(exc):
+            raise
         raise CLIError(f"--option for --decomposer {name}: {exc}") from exc
     raise CLIError(f"--decomposer {name!r}: choose one of {', '.join(DECOMPOSERS)}")
 
 
-def episode_record(episode: Episode, result) -> dict[str, Any]:
+FALLBACK_FIELDS = ("task", "episode", "index", "count", "start", "end")
+
+
+def fallback_instruction(template: str, episode: Episode, index: int, count: int, segment) -> str:
+    """``--fallback-instruction`` filled in for one segment (fields: FALLBACK_FIELDS)."""
+    try:
+        return template.format(task=episode.goal or episode.task, episode=episode.name, index=index + 1,
+                               count=count, start=int(segment[0]), end=int(segment[1]))
+    except (KeyError, IndexError, ValueError) as exc:
+        raise CLIError(f"--fallback-instruction {template!r}: {exc!r}; fields: "
+                       + ", ".join("{" + f + "}" for f in FALLBACK_FIELDS)) from exc
+
+
+def episode_record(episode: Episode, result, fallback: str | None = None) -> dict[str, Any]:
     """One episode's entry in the ``decompose`` output."""
     from rdd.segments import validate_segments
 
     segments = validate_segments(result.segments, episode.num_frames)
-    instructions = None
-    if result.neighbours is not None:
-        instructions = [str(n.get("instruction", "")) for n in result.neighbours]
+    instructions = getattr(result, "instructions", None)
+    if instructions is None and result.neighbours is not None:
+        instructions = [n.get("instruction") for n in result.neighbours]
+    sources = None
+    if fallback is not None:
+        given = list(instructions) if instructions is not None else [None] * len(segments)
+        sources = ["decomposer" if isinstance(t, str) and t.strip() else "fallback" for t in given]
+        instructions = [t if src == "decomposer" else fallback_instruction(fallback, episode, j, len(segments), seg)
+                        for j, (t, src, seg) in enumerate(zip(given, sources, segments, strict=True))]
     return {
         "episode": episode.name,
         "num_frames": episode.num_frames,
         "segments": [[s, e] for s, e in segments],
         "keyframes": [e - 1 for _, e in segments],
         "scores": None if result.scores is None else [float(x) for x in result.scores],
-        "instructions": instructions,
+        "instructions": None if instructions is None else ["" if t is None else str(t) for t in instructions],
+        "instruction_sources": sources,
         "novelty": None if result.novelty is None else float(result.novelty),
     }
 
 
+def lerobot_subtasks(episodes: Sequence[Episode], records: Sequence[dict[str, Any]], decomposer: str,
+                     ) -> dict[int, tuple[list, list[str]]]:
+    """Episode index -> (segments, instructions) for the LeRobot writer; every segment needs an instruction."""
+    out = {}
+    for ep, rec in zip(episodes, records, strict=True):
+        instr = rec["instructions"]
+        empty = [j for j, t in enumerate(instr or [None] * len(rec["segments"])) if not t or not str(t).strip()]
+        if empty:
+            raise CLIError(
+                f"--write-lerobot: decomposer {decomposer} gives no instruction for segments {empty} of episode "
+                f"{ep.name!r} (rdd takes them from its database's entries: build it from annotated episodes); "
+                "pass --fallback-instruction TEMPLATE, e.g. '{task} (step {index} of {count})'"
+            )
+        out[int(ep.meta["episode_index"])] = ([tuple(s) for s in rec["segments"]], list(instr))
+    return out
+
+
 def cmd_decompose(args: argparse.Namespace) -> int:
-    """Decompose every episode at ``--data`` and write the segments as JSON."""
+    """Decompose every episode at ``--data``; write the segments as JSON and/or into a LeRobot copy."""
+    if args.out is None and args.write_lerobot is None:
+        raise CLIError("decompose needs --out FILE.json, --write-lerobot DIR, or both")
+    if args.write_lerobot is not None and args.format != "lerobot":
+        raise CLIError(f"--write-lerobot needs --format lerobot, not {args.format}")
+    out = check_output(args.out, "--out", args.force)
+    lerobot_out = check_output(args.write_lerobot, "--write-lerobot", False, kind="dir")
+    if lerobot_out is not None and Path(args.data).resolve() in (lerobot_out.resolve(), *lerobot_out.resolve().parents):
+        raise CLIError(f"--write-lerobot {lerobot_out}: refusing to write into the source dataset {args.data}")
+    if args.fallback_instruction is not None:
+        fallback_instruction(args.fallback_instruction, Episode(name="check", views={}), 0, 1, (0, 1))
     episodes = load_data(args)
     decomposer, config = make_decomposer(args, episodes[0])
-    config.update(format=args.format, data=str(args.data), version=OUTPUT_VERSION)
+    config.update(format=args.format, data=str(args.data), version=OUTPUT_VERSION,
+                  fallback_instruction=args.fallback_instruction)
+    if args.decomposer in ("rdd", "uvd"):
+        embed_all(episodes, decomposer.encoder, decomposer.views, getattr(decomposer, "cache", None))
     records = []
-    for ep in progress(episodes, f"decompose ({args.decomposer})"):
+    for ep in track_episodes(episodes, f"decompose ({args.decomposer})"):
         try:
-            records.append(episode_record(ep, decomposer.decompose(ep)))
+            records.append(episode_record(ep, decomposer.decompose(ep), args.fallback_instruction))
         except ValueError as exc:
             raise CLIError(f"episode {ep.name!r} ({args.data}): {exc}") from exc
-    out = write_json_atomic(args.out, {"config": config, "episodes": records})
-    print(f"wrote {out}: {len(records)} episodes decomposed with {args.decomposer}")
+    subtasks = lerobot_subtasks(episodes, records, args.decomposer) if lerobot_out is not None else None
+    if out is not None:
+        write_json_atomic(out, {"config": config, "episodes": records}, overwrite=args.force)
+        print(f"wrote {out}: {len(records)} episodes decomposed with {args.decomposer}")
+    if subtasks is not None:
+        from rdd.data.lerobot_write import write_subtasks
+
+        write_subtasks(args.data, lerobot_out, subtasks)
+        print(f"wrote {lerobot_out}: LeRobot dataset with sub-tasks of {len(subtasks)} episodes "
+              "(language_persistent)")
     return 0
 
 
@@ -290,65 +409,75 @@ def read_segments_file(path: str | Path) -> dict[str, dict[str, Any]]:
     return out
 
 
-def cmd_evaluate(args: argparse.Namespace) -> int:
-    """mIoU (paper and symmetric) and boundary P/R/F1 of ``--pred`` against ``--gt``."""
-    from rdd.metrics import evaluate_segmentation
+def pred_methods(items: Sequence[str], flag: str = "--pred") -> dict[str, dict[str, dict[str, Any]]]:
+    """``LABEL=FILE`` (or bare ``FILE``, labelled by its decomposer) -> {label: {episode: record}}.
 
-    pred: dict[str, dict[str, Any]] = {}
-    for path in args.pred:
-        for name, rec in read_segments_file(path).items():
-            if name in pred:
-                raise CLIError(f"--pred {path}: episode {name!r} already came from an earlier --pred file")
-            pred[name] = rec
+    Files given the same explicit label (e.g. leave-one-out folds) are merged as episodes of one
+    method; two unlabelled files whose decomposer is the same are an error (name them).
+    """
+    methods: dict[str, dict[str, dict[str, Any]]] = {}
+    explicit: dict[str, bool] = {}
+    for item in items:
+        label, sep, path = item.partition("=")
+        if not sep or not label or Path(item).exists():
+            label, path, named = "", item, False
+        else:
+            named = True
+        records = read_segments_file(path)
+        if not named:
+            config = json.loads(Path(path).read_text()).get("config") or {}
+            label = str(config.get("decomposer") or Path(path).stem)
+        if label in methods and not (named and explicit[label]):
+            raise CLIError(f"{flag} {item}: a method is already labelled {label!r}; "
+                           f"name them, e.g. {flag} a={path} b=other.json (same name = one method's folds)")
+        explicit[label] = named
+        merged = methods.setdefault(label, {})
+        for name, rec in records.items():
+            if name in merged:
+                raise CLIError(f"{flag} {item}: episode {name!r} of method {label!r} came from an earlier file")
+            merged[name] = rec
+    return methods
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """mIoU (paper and symmetric) and boundary P/R/F1 of each ``--pred`` method against ``--gt``."""
+    from rdd.compare import compare_methods, format_table
+
+    out = check_output(args.out, "--out", args.force)
+    methods = pred_methods(args.pred)
     gt = read_segments_file(args.gt)
-    common = [name for name in pred if name in gt]
-    if not common:
-        raise CLIError(f"--pred {' '.join(args.pred)} and --gt {args.gt} share no episode names")
-    missing = sorted(set(pred) - set(gt))
-    if missing:
-        log.warning("episodes without ground truth are skipped: %s", missing)
-    per_episode = {}
-    for name in common:
-        p, g = pred[name], gt[name]
-        if p.get("num_frames") != g.get("num_frames"):
-            raise CLIError(f"episode {name!r}: --pred has {p.get('num_frames')} frames, --gt {g.get('num_frames')}")
-        try:
-            per_episode[name] = evaluate_segmentation(p["segments"], g["segments"], args.tolerance)
-        except ValueError as exc:
-            raise CLIError(f"episode {name!r}: {exc}") from exc
-    keys = list(next(iter(per_episode.values())))
-    mean = {k: sum(m[k] for m in per_episode.values()) / len(per_episode) for k in keys}
-    result = {"pred": [str(p) for p in args.pred], "gt": str(args.gt), "tolerance": args.tolerance,
-              "num_episodes": len(per_episode), "mean": mean, "episodes": per_episode}
-    width = max(len(n) for n in per_episode)
-    print(f"{'episode':<{width}}  mIoU   sym-mIoU  bP     bR     bF1")
-    for name, m in [*per_episode.items(), ("MEAN", mean)]:
-        print(f"{name:<{width}}  {m['miou']:.3f}  {m['symmetric_miou']:.3f}     "
-              f"{m['boundary_precision']:.3f}  {m['boundary_recall']:.3f}  {m['boundary_f1']:.3f}")
-    if args.out:
-        write_json_atomic(args.out, result)
+    try:
+        result = compare_methods(methods, gt, args.tolerance, allow_partial=args.allow_partial)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from exc
+    for label, m in result["methods"].items():
+        if m["left_out"]["pred_only"] or m["left_out"]["gt_only"]:
+            log.warning("--pred %s: scored %d shared episodes; left out %s", label, m["num_episodes"],
+                        m["left_out"])
+    result.update(pred=list(args.pred), gt=str(args.gt))
+    print(format_table(result))
+    if out is not None:
+        write_json_atomic(out, result, overwrite=args.force)
     return 0
 
 
 # ----------------------------------------------------------------------------- plot
 def cmd_plot(args: argparse.Namespace) -> int:
-    """Timeline figure: one row per prediction file (and ground truth), keyframe thumbnails."""
-    from rdd.plots import plot_timelines
+    """Timeline figure: one row per method (and ground truth), keyframe thumbnails."""
+    from rdd.plots import figure_format, plot_timelines
 
-    episodes = {e.name: e for e in load_data(args)}
-    rows: dict[str, dict[str, list]] = {}
+    out = check_output(args.out, "--out", args.force)
+    try:
+        figure_format(out)
+    except ValueError as exc:
+        raise CLIError(f"--out {exc}") from exc
     labels = args.labels or []
     if labels and len(labels) != len(args.pred):
         raise CLIError(f"--labels: {len(labels)} labels for {len(args.pred)} --pred files")
-    for i, path in enumerate(args.pred):
-        data = json.loads(Path(path).read_text()) if Path(path).is_file() else None
-        if data is None:
-            raise CLIError(f"--pred {path}: no such file")
-        label = labels[i] if labels else str((data.get("config") or {}).get("decomposer") or Path(path).stem)
-        # Files with the same label (e.g. leave-one-out folds) merge into one row.
-        rows.setdefault(label, {}).update(
-            {n: r["segments"] for n, r in read_segments_file(path).items()}
-        )
+    items = [f"{lab}={p}" for lab, p in zip(labels, args.pred, strict=True)] if labels else args.pred
+    methods = pred_methods(items)
+    rows = {label: {n: r["segments"] for n, r in recs.items()} for label, recs in methods.items()}
+    episodes = {e.name: e for e in load_data(args)}
     gt = {n: r["segments"] for n, r in read_segments_file(args.gt).items()} if args.gt else {}
     names = args.episode or [n for n in episodes if any(n in r for r in rows.values())]
     if not names:
@@ -360,7 +489,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
         ep_rows = {label: r[name] for label, r in rows.items() if name in r}
         truth = gt.get(name) or episodes[name].segments
         panels.append((episodes[name], ep_rows, truth))
-    out = plot_timelines(panels, args.out, view=args.view, gt_label=args.gt_label)
+    out = plot_timelines(panels, out, view=args.view, gt_label=args.gt_label, overwrite=args.force)
     print(f"wrote {out}")
     return 0
 
@@ -371,9 +500,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
         from rdd.demo import run_demo
     except ImportError as exc:
         raise CLIError(f"demo: rdd.demo is not available ({exc})") from exc
+    check_output(args.json, "--json", args.force)
     result = run_demo(seed=args.seed, backend=args.backend)  # prints its own summary
     if args.json:
-        write_json_atomic(args.json, json.loads(json.dumps(result, default=str)))
+        write_json_atomic(args.json, json.loads(json.dumps(result, default=str)), overwrite=args.force)
         print(f"wrote {args.json}")
     return 0
 
@@ -383,7 +513,7 @@ def _data_args(p: argparse.ArgumentParser, data_required: bool = True) -> None:
     p.add_argument("--format", choices=FORMATS, required=True, help="episode format of --data")
     p.add_argument("--data", required=data_required, help="one episode or a folder of episodes")
     p.add_argument("--reader-option", action="append", metavar="KEY=VALUE",
-                   help="reader keyword (JSON value), e.g. episodes=[1,2] gripper_key=observation.state")
+                   help="reader keyword (JSON value); the options of each format are listed below")
     p.add_argument("--include", nargs="+", metavar="NAME", help="only these episodes")
     p.add_argument("--exclude", nargs="+", metavar="NAME", help="skip these episodes")
 
@@ -396,25 +526,48 @@ def _embed_args(p: argparse.ArgumentParser) -> None:
 
 
 def _expert_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--stopping-delta", type=float, default=0.1, help="expert rule: still-arm velocity")
+    p.add_argument("--stopping-delta", type=float, default=0.1,
+                   help="expert rule (stop_test=absolute, RLBench): still-arm joint velocity; recorded "
+                        "data with an fps (LeRobot) uses the scale-aware test, see --option stopping_fraction")
     p.add_argument("--velocity-source", choices=("auto", "joint", "ee"), default="auto")
+
+
+def _force_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--force", action="store_true", help="replace an existing output")
+
+
+def reader_help() -> str:
+    """The reader options of every format, for ``--help``."""
+    from rdd.data.lerobot import READER_OPTIONS
+
+    lines = ["reader options (--reader-option KEY=VALUE, VALUE as JSON):",
+             "  rlbench: views=[\"front\",\"wrist\"] (null: every <view>_rgb folder)",
+             "  native: none", "  lerobot:"]
+    lines += [f"    {k}: {v}" for k, v in READER_OPTIONS.items()]
+    return "\n".join(lines)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``python -m rdd``."""
     parser = argparse.ArgumentParser(prog="python -m rdd", description=__doc__.splitlines()[0])
-    parser.add_argument("-v", "--verbose", action="store_true")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="log each step, and print the traceback of an error")
     sub = parser.add_subparsers(dest="command", required=True)
+    fmt = {"formatter_class": argparse.RawDescriptionHelpFormatter, "epilog": reader_help()}
 
-    p = sub.add_parser("build-db", help="expert-segment episodes and build the sub-task database")
+    p = sub.add_parser("build-db", help="segment episodes and build the sub-task database", **fmt)
     _data_args(p)
     p.add_argument("--encoder", required=True, help="encoder name (rdd.encoders), e.g. effnet_lite0")
     _embed_args(p)
     _expert_args(p)
+    p.add_argument("--segments", choices=("auto", "subtasks", "expert"), default="auto",
+                   help="sub-tasks from the episodes' annotations (LeRobot language_persistent subtask rows) "
+                        "or the expert rule; auto: annotations when every episode has them")
     p.add_argument("--out", required=True, help="database directory")
+    _force_arg(p)
     p.set_defaults(func=cmd_build_db)
 
-    p = sub.add_parser("decompose", help="decompose episodes into sub-task segments")
+    p = sub.add_parser("decompose", help="decompose episodes into sub-task segments", **fmt)
     _data_args(p)
     p.add_argument("--decomposer", choices=DECOMPOSERS, required=True)
     p.add_argument("--encoder", help="encoder for rdd/uvd (rdd: default the database's)")
@@ -422,34 +575,49 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--alpha", type=float, help="rdd: weight of the duration term")
     p.add_argument("--max-len", type=int, help="rdd: longest segment in frames")
     p.add_argument("--option", action="append", metavar="KEY=VALUE",
-                   help="decomposer keyword, e.g. n_segments=5 (uniform), min_interval=10 (uvd)")
+                   help="decomposer keyword, e.g. n_segments=5 (uniform), min_interval=10 (uvd), "
+                        "stopping_fraction=0.1 (expert); unknown keys and bad values are errors")
     _embed_args(p)
     _expert_args(p)
-    p.add_argument("--out", required=True, help="output JSON file")
+    p.add_argument("--out", help="output JSON file")
+    p.add_argument("--write-lerobot", metavar="DIR",
+                   help="also write DIR, a copy of the LeRobot dataset --data whose language_persistent "
+                        "column carries the sub-tasks (new folder; never the source)")
+    p.add_argument("--fallback-instruction", metavar="TEMPLATE",
+                   help="instruction for segments the decomposer gives none, with fields "
+                        + ", ".join("{" + f + "}" for f in FALLBACK_FIELDS))
+    _force_arg(p)
     p.set_defaults(func=cmd_decompose)
 
-    p = sub.add_parser("evaluate", help="compare decompose outputs with ground truth")
-    p.add_argument("--pred", nargs="+", required=True, help="decompose outputs (episodes merged)")
+    p = sub.add_parser("evaluate", help="compare decompose outputs (one or more methods) with ground truth")
+    p.add_argument("--pred", nargs="+", required=True, metavar="[LABEL=]FILE",
+                   help="one decompose output per method, e.g. rdd=rdd.json uvd=uvd.json (same LABEL twice: "
+                        "one method's folds)")
     p.add_argument("--gt", required=True)
     p.add_argument("--tolerance", type=int, default=2, help="boundary tolerance in frames")
+    p.add_argument("--allow-partial", action="store_true",
+                   help="score only the episodes a method shares with --gt (default: differing sets are an error)")
     p.add_argument("--out", help="write the metrics JSON here")
+    _force_arg(p)
     p.set_defaults(func=cmd_evaluate)
 
-    p = sub.add_parser("plot", help="timeline figure of one or more decompose outputs")
-    p.add_argument("--pred", nargs="+", required=True)
+    p = sub.add_parser("plot", help="timeline figure of one or more decompose outputs", **fmt)
+    p.add_argument("--pred", nargs="+", required=True, metavar="[LABEL=]FILE")
     _data_args(p)
     p.add_argument("--gt", help="ground-truth decompose output (default: the episodes' own segments)")
     p.add_argument("--gt-label", default="ground truth")
     p.add_argument("--labels", nargs="+", help="row labels, one per --pred file")
     p.add_argument("--episode", nargs="+", help="episodes to draw (default: all in --pred)")
     p.add_argument("--view", help="camera view for thumbnails (default: the first)")
-    p.add_argument("--out", required=True, help="PNG file")
+    p.add_argument("--out", required=True, help="figure file: .png, .pdf or .svg")
+    _force_arg(p)
     p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("demo", help="run the end-to-end demo")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--backend", default="exact", help="retrieval backend: exact, annoy or faiss")
     p.add_argument("--json", help="also write the demo's summary here")
+    _force_arg(p)
     p.set_defaults(func=cmd_demo)
     return parser
 
@@ -461,13 +629,21 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     try:
         return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted ({args.command}): stopped; no partial output was written", file=sys.stderr)
+        return 130
     except CLIError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except (FileNotFoundError, KeyError, ValueError, ImportError, RuntimeError) as exc:
+        return _report(args, str(exc), "error")
+    except (FileNotFoundError, KeyError, ValueError, ImportError, RuntimeError, OSError,
+            pickle.UnpicklingError) as exc:
         # Library errors already name the file/field at fault; show them without a traceback.
-        if args.verbose:
-            raise
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"error ({args.command}): {msg}", file=sys.stderr)
-        return 2
+        return _report(args, str(msg), f"error ({args.command})")
+
+
+def _report(args: argparse.Namespace, message: str, prefix: str) -> int:
+    """Print an expected error as one line (after its traceback with -v); exit status 2."""
+    if args.verbose:
+        traceback.print_exc()
+    print(f"{prefix}: {message}", file=sys.stderr)
+    return 2

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from rdd.segments import Segment, boundaries
+from rdd.segments import Segment, boundaries, validate_segments
 
 
 def segment_iou(a: Segment, b: Segment) -> float:
@@ -65,9 +65,12 @@ def boundary_scores(
 
 
 def evaluate_segmentation(
-    pred: Sequence[Segment], gt: Sequence[Segment], tolerance: int = 0
+    pred: Sequence[Segment], gt: Sequence[Segment], tolerance: int = 0, num_frames: int | None = None
 ) -> dict[str, float]:
-    """All metrics for one episode."""
+    """All metrics for one episode; with ``num_frames`` both must partition ``[0, num_frames)``."""
+    if num_frames is not None:
+        pred = validate_segments(pred, num_frames)
+        gt = validate_segments(gt, num_frames)
     b = boundary_scores(pred, gt, tolerance)
     return {
         "miou": miou(pred, gt),

@@ -3,17 +3,26 @@ coloured segments with their boundaries, and the keyframe of each segment as a t
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from rdd.atomic import atomic_file
 from rdd.data.episode import Episode
 from rdd.segments import Segment, validate_segments
 
+FIGURE_FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg"}
 PanelSpec = tuple[Episode, Mapping[str, Sequence[Segment]], Sequence[Segment] | None]
+
+
+def figure_format(path: str | Path) -> str:
+    """The figure format a file name asks for; other suffixes are an error naming the file."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in FIGURE_FORMATS:
+        raise ValueError(f"{path}: unsupported figure format {suffix or '(none)'!r}; "
+                         f"use one of {', '.join(FIGURE_FORMATS)}")
+    return FIGURE_FORMATS[suffix]
 
 
 def _thumbnail(image: np.ndarray, height: int = 48) -> np.ndarray:
@@ -56,13 +65,17 @@ def plot_timelines(
     gt_label: str = "ground truth",
     max_thumbs: int = 10,
     thumb_height: int = 48,
+    overwrite: bool = True,
 ) -> Path:
-    """Draw one panel per (episode, {method: segments}, ground truth or None) and save a PNG."""
+    """Draw one panel per (episode, {method: segments}, ground truth or None) and save it in the
+    format its file name asks for (.png, .pdf or .svg)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    out = Path(out)
+    fmt = figure_format(out)
     if not panels:
         raise ValueError("nothing to plot: no episodes given")
     n_rows = [len(rows) + (gt is not None) for _, rows, gt in panels]
@@ -98,14 +111,9 @@ def plot_timelines(
         ax.set_title(f"{episode.name} ({t} frames){goal}", fontsize=10, loc="left")
         ax.grid(axis="x", alpha=0.3)
     fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.stem}.", suffix=".png")
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, out)
+        with atomic_file(out, "wb", overwrite=overwrite) as fh:
+            fig.savefig(fh, dpi=110, format=fmt)
     finally:
         plt.close(fig)
-        Path(tmp).unlink(missing_ok=True)
     return out

@@ -100,9 +100,11 @@ def restricted_load(path: str | Path) -> Any:
         raise FileNotFoundError(f"cannot read {path}: {exc}") from exc
     try:
         return RestrictedUnpickler(io.BytesIO(data), source=str(path)).load()
-    except pickle.UnpicklingError:
-        raise
-    except Exception as exc:  # corrupt pickles raise many types; report the file either way
+    except pickle.UnpicklingError as exc:
+        if str(exc).startswith(str(path)):  # a refused global: already names the file
+            raise
+        raise pickle.UnpicklingError(f"{path}: not a readable RLBench pickle ({exc})") from exc
+    except Exception as exc:  # corrupt or truncated pickles raise many types; report the file either way
         raise ValueError(f"{path}: not a readable RLBench pickle ({type(exc).__name__}: {exc})") from exc
 
 

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import inspect
+import math
 from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,3 +37,53 @@ class Decomposer(ABC):
     @abstractmethod
     def decompose(self, episode: Episode) -> Decomposition:
         """Segment ``episode``."""
+
+
+# ----------------------------------------------------------------------------- option checks
+# Every decomposer validates its options with these, so a bad value fails at construction with
+# one line naming the decomposer and the option (``n_segments=2.5`` is not silently truncated).
+def check_int(owner: str, name: str, value: Any, minimum: int | None = None, allow_none: bool = False) -> int | None:
+    """``value`` as an int (integral numbers only, no bools), at least ``minimum``."""
+    if value is None and allow_none:
+        return None
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and float(value).is_integer()
+    if not ok:
+        raise ValueError(f"{owner}: option {name} must be a whole number, got {value!r}")
+    out = int(value)
+    if minimum is not None and out < minimum:
+        raise ValueError(f"{owner}: option {name} must be >= {minimum}, got {value!r}")
+    return out
+
+
+def check_float(owner: str, name: str, value: Any, minimum: float | None = None, maximum: float | None = None,
+                exclusive_min: bool = False, allow_none: bool = False) -> float | None:
+    """``value`` as a finite float within ``[minimum, maximum]`` (``(minimum, ...`` when exclusive)."""
+    if value is None and allow_none:
+        return None
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(float(value)):
+        raise ValueError(f"{owner}: option {name} must be a finite number, got {value!r}")
+    out = float(value)
+    low_bad = minimum is not None and (out <= minimum if exclusive_min else out < minimum)
+    if low_bad or (maximum is not None and out > maximum):
+        low = "" if minimum is None else f"{'>' if exclusive_min else '>='} {minimum}"
+        high = "" if maximum is None else f"<= {maximum}"
+        raise ValueError(f"{owner}: option {name} must be {' and '.join(x for x in (low, high) if x)}, got {value!r}")
+    return out
+
+
+def check_choice(owner: str, name: str, value: Any, choices: Sequence[Any]) -> Any:
+    """``value`` if it is one of ``choices``."""
+    if value not in choices:
+        raise ValueError(f"{owner}: option {name} must be one of {list(choices)}, got {value!r}")
+    return value
+
+
+def check_option_names(cls: type, options: Mapping[str, Any], reserved: Sequence[str] = ()) -> None:
+    """Reject keys of ``options`` that ``cls.__init__`` does not take (``reserved`` are set by the caller)."""
+    params = inspect.signature(cls.__init__).parameters
+    accepted = [p for p in params if p != "self" and params[p].kind in (
+        inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY) and p not in reserved]
+    unknown = sorted(set(options) - set(accepted))
+    if unknown:
+        owner = getattr(cls, "name", cls.__name__)
+        raise ValueError(f"decomposer {owner}: unknown option(s) {unknown}; accepted: {', '.join(accepted)}")

@@ -10,7 +10,7 @@ from typing import Literal
 import numpy as np
 
 from rdd.data.episode import Episode
-from rdd.decomposers.base import Decomposer, Decomposition
+from rdd.decomposers.base import Decomposer, Decomposition, check_choice, check_float
 from rdd.segments import keyframes_to_segments
 
 
@@ -76,8 +76,64 @@ def ee_velocities(ee_poses: np.ndarray) -> np.ndarray:
     return vel
 
 
+def still_runs(speed: np.ndarray, threshold: float, min_frames: int) -> list[tuple[int, int]]:
+    """Maximal runs ``[a, b)`` of at least ``min_frames`` frames with ``speed <= threshold``."""
+    still = np.concatenate([[False], np.asarray(speed) <= threshold, [False]])
+    edges = np.flatnonzero(np.diff(still.astype(np.int8)))
+    runs = list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+    return [(a, b) for a, b in runs if b - a >= min_frames]
+
+
+def scale_aware_keyframes(
+    gripper_open: np.ndarray,
+    velocities: np.ndarray,
+    fps: float,
+    stopping_fraction: float = 0.1,
+    smooth_s: float = 0.1,
+    min_stop_s: float = 0.2,
+) -> list[int]:
+    """Keyframes of recorded (real) data: gripper changes, the first frame of each rest, last frame.
+
+    Velocities are in the dataset's own units per second. The speed ``max_j |v_j|`` is averaged over
+    ``smooth_s`` seconds (finite differences of teleoperated positions are noisy) and the arm rests
+    where it stays at or below ``stopping_fraction`` of the episode's peak speed (95th percentile)
+    for ``min_stop_s`` seconds. Each rest counts once (RLBench's rule fires every 5 frames of a long
+    rest), rests at the very start or end are not sub-task ends, and keyframes closer than
+    ``min_stop_s`` to the previous one are merged into it.
+    """
+    g = np.asarray(gripper_open, dtype=np.float64).reshape(-1)
+    v = np.asarray(velocities, dtype=np.float64)
+    v = v[:, None] if v.ndim == 1 else v
+    t = g.shape[0]
+    if v.ndim != 2 or v.shape[0] != t:
+        raise ValueError(f"velocities must be (T, J) with T = len(gripper_open) = {t}, got shape {v.shape}")
+    if t == 0:
+        return []
+    speed = np.abs(v).max(axis=1) if v.shape[1] else np.zeros(t)
+    window = max(1, round(smooth_s * fps))
+    smoothed = np.convolve(speed, np.ones(window) / window, mode="same")
+    peak = float(np.percentile(smoothed, 95))
+    min_frames = max(1, round(min_stop_s * fps))
+    candidates = set(np.flatnonzero(g[1:] != g[:-1]) + 1)
+    if peak > 0:
+        candidates |= {a for a, b in still_runs(smoothed, stopping_fraction * peak, min_frames) if 0 < a and b < t}
+    keyframes: list[int] = []
+    for k in sorted(int(c) for c in candidates):
+        if k < t - 1 - min_frames and (not keyframes or k - keyframes[-1] >= min_frames):
+            keyframes.append(k)
+    return [*keyframes, t - 1] if t > 1 else keyframes
+
+
+STOP_TESTS = ("auto", "absolute", "scale")
+
+
 class ExpertDecomposer(Decomposer):
-    """Segments at the RLBench keyframes of an episode's gripper state and velocities."""
+    """Segments at the RLBench keyframes of an episode's gripper state and velocities.
+
+    ``stop_test``: ``absolute`` is RLBench's rule (``|v| <= stopping_delta`` per joint, per control
+    step); ``scale`` is :func:`scale_aware_keyframes` in the dataset's own units and fps (for recorded
+    robot data); ``auto`` picks ``scale`` when the episode declares its fps (LeRobot), else ``absolute``.
+    """
 
     name = "expert"
 
@@ -86,14 +142,20 @@ class ExpertDecomposer(Decomposer):
         stopping_delta: float = 0.1,
         velocity_source: Literal["auto", "joint", "ee"] = "auto",
         ee_stopping_delta: float | None = None,
+        stop_test: str = "auto",
+        stopping_fraction: float = 0.1,
+        smooth_s: float = 0.1,
+        min_stop_s: float = 0.2,
     ):
-        if velocity_source not in ("auto", "joint", "ee"):
-            raise ValueError(
-                f"velocity_source must be 'auto', 'joint' or 'ee', got {velocity_source!r}"
-            )
-        self.stopping_delta = float(stopping_delta)
-        self.velocity_source = velocity_source
-        self.ee_stopping_delta = ee_stopping_delta
+        owner = "decomposer expert"
+        self.velocity_source = check_choice(owner, "velocity_source", velocity_source, ("auto", "joint", "ee"))
+        self.stopping_delta = check_float(owner, "stopping_delta", stopping_delta, minimum=0.0)
+        self.ee_stopping_delta = check_float(owner, "ee_stopping_delta", ee_stopping_delta, minimum=0.0,
+                                             allow_none=True)
+        self.stop_test = check_choice(owner, "stop_test", stop_test, STOP_TESTS)
+        self.stopping_fraction = check_float(owner, "stopping_fraction", stopping_fraction, 0.0, 1.0)
+        self.smooth_s = check_float(owner, "smooth_s", smooth_s, minimum=0.0)
+        self.min_stop_s = check_float(owner, "min_stop_s", min_stop_s, minimum=0.0)
 
     def _velocities(self, episode: Episode) -> tuple[np.ndarray, float, str]:
         use_joint = self.velocity_source == "joint" or (
@@ -116,8 +178,21 @@ class ExpertDecomposer(Decomposer):
         if episode.gripper_open is None:
             raise ValueError(f"episode {episode.name!r} has no gripper_open signal for the expert rule")
         velocities, delta, source = self._velocities(episode)
-        keyframes = keypoint_discovery(episode.gripper_open, velocities, delta)
+        fps = episode.meta.get("fps")
+        test = self.stop_test
+        if test == "auto":
+            test = "scale" if fps else "absolute"
+        if test == "scale":
+            if not fps:
+                raise ValueError(f"episode {episode.name!r} declares no fps (meta['fps']); "
+                                 "the expert option stop_test=scale needs it (use stop_test=absolute)")
+            per_second = velocities if source == "joint" else velocities * float(fps)
+            keyframes = scale_aware_keyframes(episode.gripper_open, per_second, float(fps),
+                                              self.stopping_fraction, self.smooth_s, self.min_stop_s)
+        else:
+            keyframes = keypoint_discovery(episode.gripper_open, velocities, delta)
         segments = keyframes_to_segments(keyframes, episode.num_frames)
         return Decomposition(
-            segments=segments, meta={"keypoints": keyframes, "velocity_source": source}
+            segments=segments,
+            meta={"keypoints": keyframes, "velocity_source": source, "stop_test": test},
         )

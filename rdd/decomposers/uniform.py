@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from rdd.data.episode import Episode
-from rdd.decomposers.base import Decomposer, Decomposition
+from rdd.decomposers.base import Decomposer, Decomposition, check_choice, check_int
 from rdd.segments import Segment
 
 
@@ -34,11 +34,9 @@ class UniformDecomposer(Decomposer):
     name = "uniform"
 
     def __init__(self, n_segments: int = 10, clip_to_length: bool = False):
-        if int(n_segments) < 1:
-            raise ValueError(f"n_segments must be at least 1, got {n_segments}")
-        self.n_segments = int(n_segments)
+        self.n_segments = check_int("decomposer uniform", "n_segments", n_segments, minimum=1)
         # When set, an episode shorter than n_segments gets one frame per segment instead of an error.
-        self.clip_to_length = bool(clip_to_length)
+        self.clip_to_length = check_choice("decomposer uniform", "clip_to_length", clip_to_length, (True, False))
 
     def decompose(self, episode: Episode) -> Decomposition:
         """Equal segments of ``episode``."""

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from rdd.data.episode import Episode
-from rdd.decomposers.base import Decomposer, Decomposition
+from rdd.decomposers.base import Decomposer, Decomposition, check_choice, check_float, check_int
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import DEFAULT_VIEWS, episode_frame_vectors
 from rdd.segments import keyframes_to_segments
@@ -130,10 +130,11 @@ class UVDDecomposer(Decomposer):
     ):
         self.encoder = encoder
         self.views = tuple(views)
-        self.min_interval = int(min_interval)
-        self.gamma = float(gamma)
-        self.normalize_curve = bool(normalize_curve)
-        self.window_length = None if window_length is None else int(window_length)
+        owner = "decomposer uvd"
+        self.min_interval = check_int(owner, "min_interval", min_interval, minimum=1)
+        self.gamma = check_float(owner, "gamma", gamma, minimum=0.0, exclusive_min=True)
+        self.normalize_curve = check_choice(owner, "normalize_curve", normalize_curve, (True, False))
+        self.window_length = check_int(owner, "window_length", window_length, minimum=1, allow_none=True)
         self.cache = cache
 
     def decompose_embeddings(self, frame_vectors: np.ndarray) -> Decomposition:

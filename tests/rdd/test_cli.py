@@ -86,7 +86,7 @@ def test_full_pipeline(data, tmp_path, capsys):
     assert "MEAN" in capsys.readouterr().out
     ev = json.loads((tmp_path / "eval.json").read_text())
     # Uniform thirds [0,14),[14,27),[27,40) vs expert [0,13),[13,28),[28,40).
-    assert ev["episodes"]["ep0"]["miou"] == pytest.approx((13 / 14 + 13 / 15 + 12 / 13) / 3)
+    assert ev["methods"]["uniform"]["episodes"]["ep0"]["miou"] == pytest.approx((13 / 14 + 13 / 15 + 12 / 13) / 3)
     assert run("plot", "--pred", tmp_path / "rdd.json", tmp_path / "uvd.json", "--gt",
                tmp_path / "expert.json", "--format", "native", "--data", data, "--episode", "ep0",
                "--out", tmp_path / "fig.png") == 0

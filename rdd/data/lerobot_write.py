@@ -1,0 +1,238 @@
+"""Write sub-tasks back into a copy of a LeRobot dataset (v2.1 or v3.0) as LeRobot's language columns.
+
+The copy keeps every source file byte for byte (hard-linked when the filesystem allows, else
+copied) except the data parquet files, which gain two columns, and ``meta/info.json``, which
+declares them (``{"dtype": "language", "shape": [1], "names": null}``, as
+``lerobot.datasets.language.language_feature_info`` does):
+
+- ``language_persistent``: on every frame of an episode the same list of rows ``{role: "assistant",
+  content: <instruction>, style: "subtask", timestamp: <float32, the segment's first frame
+  timestamp>, camera: null, tool_calls: null}``, one row per segment (LeRobot's persistent slice);
+- ``language_events``: per-frame event rows, empty lists here.
+
+Episodes without new sub-tasks keep the rows they had (empty lists when they had none), and rows
+of other styles (plan, memory, ...) of a decomposed episode are kept. Every source column is
+unchanged; each episode is one parquet row group, as LeRobot writes them. The copy appears under
+its final name only when complete (:func:`rdd.atomic.atomic_dir`), never replaces an existing
+folder, and is refused inside the source dataset.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import shutil
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rdd.atomic import atomic_dir
+from rdd.data.lerobot import LANGUAGE_EVENTS, LANGUAGE_PERSISTENT, LeRobotDataset, _column, _need
+from rdd.segments import Segment, validate_segments
+
+LANGUAGE_FEATURE = {"dtype": "language", "shape": [1], "names": None}
+SUBTASK_STYLE = "subtask"
+
+
+def persistent_type():
+    """Arrow type of ``language_persistent`` (LeRobot's canonical type with JSON stored as string)."""
+    pa = _need("pyarrow")
+    return pa.list_(pa.struct([
+        pa.field("role", pa.string(), nullable=False),
+        pa.field("content", pa.string()),
+        pa.field("style", pa.string()),
+        pa.field("timestamp", pa.float32(), nullable=False),
+        pa.field("camera", pa.string()),
+        pa.field("tool_calls", pa.list_(pa.string())),
+    ]))
+
+
+def events_type():
+    """Arrow type of ``language_events`` (rows carry no timestamp: they sit on their frame)."""
+    pa = _need("pyarrow")
+    return pa.list_(pa.struct([
+        pa.field("role", pa.string(), nullable=False),
+        pa.field("content", pa.string()),
+        pa.field("style", pa.string()),
+        pa.field("camera", pa.string()),
+        pa.field("tool_calls", pa.list_(pa.string())),
+    ]))
+
+
+def subtask_rows(segments: Sequence[Segment], instructions: Sequence[str], timestamps: np.ndarray,
+                 where: str) -> list[dict[str, Any]]:
+    """One persistent row per segment, stamped with the segment's first frame timestamp (float32)."""
+    segs = validate_segments(segments, len(timestamps))
+    if len(instructions) != len(segs):
+        raise ValueError(f"{where}: {len(instructions)} instructions for {len(segs)} segments")
+    rows = []
+    for (start, _end), text in zip(segs, instructions, strict=True):
+        if not isinstance(text, str) or not text.strip():
+            raise ValueError(f"{where}: segment starting at frame {start} has no instruction")
+        rows.append({"role": "assistant", "content": text, "style": SUBTASK_STYLE,
+                     "timestamp": float(np.float32(timestamps[start])), "camera": None, "tool_calls": None})
+    return rows
+
+
+def _hf_metadata(metadata: dict[bytes, bytes] | None) -> dict[bytes, bytes] | None:
+    """The schema metadata with the language columns added to the ``huggingface`` features, if any."""
+    if not metadata or b"huggingface" not in metadata:
+        return metadata
+    try:
+        hf = json.loads(metadata[b"huggingface"])
+        features = hf["info"]["features"]
+    except (ValueError, KeyError, TypeError):
+        return metadata
+    legacy = '"_type": "List"' not in metadata[b"huggingface"].decode("utf-8", "replace")
+
+    def value(dtype: str) -> dict:
+        return {"dtype": dtype, "_type": "Value"}
+
+    def listed(feature: Any) -> Any:
+        if legacy:  # datasets < 4 writes a list of structs as [struct], a list of values as Sequence
+            return [feature] if isinstance(feature, dict) and "_type" not in feature else \
+                {"feature": feature, "_type": "Sequence"}
+        return {"feature": feature, "_type": "List"}
+
+    row = {"role": value("string"), "content": value("string"), "style": value("string"),
+           "timestamp": value("float32"), "camera": value("string"), "tool_calls": listed(value("string"))}
+    event = {k: v for k, v in row.items() if k != "timestamp"}
+    features[LANGUAGE_PERSISTENT] = listed(row)
+    features[LANGUAGE_EVENTS] = listed(event)
+    out = dict(metadata)
+    out[b"huggingface"] = json.dumps(hf).encode()
+    return out
+
+
+def _rewrite_data_file(src: Path, dst: Path, new_rows: Mapping[int, list[dict[str, Any]]],
+                       file_episode: int | None) -> list[int]:
+    """Copy parquet ``src`` to ``dst`` with the two language columns; returns the episodes it holds."""
+    pa = _need("pyarrow")
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(src)
+    n = table.num_rows
+    if "episode_index" in table.column_names:
+        episodes = _column(table, "episode_index", src).astype(np.int64)
+    elif file_episode is not None:
+        episodes = np.full(n, file_episode, dtype=np.int64)
+    else:
+        raise ValueError(f"{src}: no column 'episode_index' (needed to place sub-tasks in a multi-episode file)")
+    if n and "timestamp" not in table.column_names:
+        raise ValueError(f"{src}: no column 'timestamp' (sub-task rows are stamped with frame timestamps)")
+    old_persistent = table.column(LANGUAGE_PERSISTENT).to_pylist() if LANGUAGE_PERSISTENT in table.column_names else None
+    old_events = table.column(LANGUAGE_EVENTS).to_pylist() if LANGUAGE_EVENTS in table.column_names else None
+    base = table.drop_columns([c for c in (LANGUAGE_PERSISTENT, LANGUAGE_EVENTS) if c in table.column_names])
+    # Episodes in the order they appear; each becomes one row group.
+    change = np.flatnonzero(np.diff(episodes)) + 1
+    bounds = [0, *change.tolist(), n]
+    order = [int(episodes[a]) for a in bounds[:-1]]
+    if len(set(order)) != len(order):
+        raise ValueError(f"{src}: the rows of an episode are not contiguous")
+    persistent: list[list[dict]] = []
+    events: list[list[dict]] = []
+    for a, b, ep in zip(bounds[:-1], bounds[1:], order, strict=True):
+        if ep in new_rows:
+            kept = [r for r in (old_persistent[a] or []) if r.get("style") != SUBTASK_STYLE] if old_persistent else []
+            rows = sorted([*kept, *new_rows[ep]], key=lambda r: (float(r["timestamp"]), r.get("style") or ""))
+            persistent.extend([rows] * (b - a))
+        else:
+            persistent.extend(old_persistent[a:b] if old_persistent else [[] for _ in range(b - a)])
+        events.extend(old_events[a:b] if old_events else [[] for _ in range(b - a)])
+    table = base.append_column(pa.field(LANGUAGE_PERSISTENT, persistent_type()),
+                               pa.array(persistent, type=persistent_type()))
+    table = table.append_column(pa.field(LANGUAGE_EVENTS, events_type()), pa.array(events, type=events_type()))
+    table = table.replace_schema_metadata(_hf_metadata(base.schema.metadata))
+    with pq.ParquetWriter(dst, table.schema) as writer:
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            writer.write_table(table.slice(a, b - a), row_group_size=max(1, b - a))
+    return order
+
+
+def _link_or_copy(src: Path, dst: Path, link: bool) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    if link:
+        try:
+            os.link(src, dst)
+            return
+        except OSError as exc:
+            if exc.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK, errno.ENOTSUP, errno.EACCES):
+                raise
+    shutil.copyfile(src, dst)
+    shutil.copymode(src, dst)
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    try:
+        path.relative_to(folder)
+        return True
+    except ValueError:
+        return False
+
+
+def write_subtasks(
+    source: str | Path,
+    out: str | Path,
+    subtasks: Mapping[int, tuple[Sequence[Segment], Sequence[str]]],
+    link: bool = True,
+) -> Path:
+    """Write OUT, a copy of the dataset at ``source`` whose ``language_persistent`` column carries
+    ``subtasks`` (episode index -> (segments, instructions)); returns OUT."""
+    _need("pyarrow")
+    ds = LeRobotDataset(source)
+    src_root, out = ds.root.resolve(), Path(out)
+    target = out.resolve()
+    if target == src_root or _inside(target, src_root) or _inside(src_root, target):
+        raise ValueError(f"--write-lerobot {out}: refusing to write into (or over) the source dataset {ds.root}")
+    unknown = sorted(set(subtasks) - set(ds.episodes))
+    if unknown:
+        raise ValueError(f"{ds.root}: episodes {unknown} are not listed in its metadata")
+    data_files: dict[Path, int | None] = {}
+    for ep in sorted(ds.episodes):
+        path = ds.data_file(ep)
+        if path.is_file():
+            # v2.1 holds one episode per file (its index is known even without the column)
+            data_files.setdefault(path.resolve(), ep if ds.version == "v2.1" else None)
+    missing = [ep for ep in subtasks if not ds.data_file(ep).is_file()]
+    if missing:
+        raise FileNotFoundError(f"{ds.root}: data files of episodes {missing} are missing")
+    rows: dict[int, list[dict[str, Any]]] = {}
+    for ep, (segments, instructions) in subtasks.items():
+        import pyarrow.parquet as pq
+
+        path = ds.data_file(ep)
+        table = pq.read_table(path, columns=[c for c in ("episode_index", "frame_index", "timestamp")
+                                              if c in pq.read_schema(path).names])
+        if "episode_index" in table.column_names:
+            table = table.filter(_column(table, "episode_index", path) == ep)
+        if "frame_index" in table.column_names:
+            table = table.take(np.argsort(_column(table, "frame_index", path), kind="stable"))
+        if "timestamp" not in table.column_names:
+            raise ValueError(f"{path}: no column 'timestamp' (sub-task rows are stamped with frame timestamps)")
+        ts = _column(table, "timestamp", path).astype(np.float32)
+        rows[int(ep)] = subtask_rows(segments, instructions, ts, f"{path} (episode {ep})")
+    written: set[int] = set()
+    with atomic_dir(out) as tmp:
+        for dirpath, _dirs, files in os.walk(src_root):
+            for name in files:
+                src = Path(dirpath) / name
+                rel = src.relative_to(src_root)
+                dst = tmp / rel
+                if src.resolve() in data_files:
+                    dst.parent.mkdir(parents=True, exist_ok=True)
+                    written.update(_rewrite_data_file(src, dst, rows, data_files[src.resolve()]))
+                elif rel == Path("meta/info.json"):
+                    info = dict(ds.info)
+                    info["features"] = {**ds.info["features"], LANGUAGE_PERSISTENT: dict(LANGUAGE_FEATURE),
+                                        LANGUAGE_EVENTS: dict(LANGUAGE_FEATURE)}
+                    dst.parent.mkdir(parents=True, exist_ok=True)
+                    dst.write_text(json.dumps(info, indent=4, ensure_ascii=False) + "\n")
+                else:
+                    _link_or_copy(src, dst, link)
+        lost = sorted(set(rows) - written)
+        if lost:
+            raise ValueError(f"{ds.root}: the data files hold no rows of episodes {lost}")
+    return out
