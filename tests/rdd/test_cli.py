@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -122,3 +123,134 @@ def test_demo_subcommand(tmp_path, capsys):
     assert run("demo", "--json", tmp_path / "demo.json") == 0
     assert (tmp_path / "demo.json").is_file()
     assert "novelty" in capsys.readouterr().out
+
+
+def test_bad_inputs_are_one_line_errors(data, tmp_path, capsys, monkeypatch):
+    """Each bad input of issue 14: exit 2, one line on stderr naming the option or file, nothing written."""
+    base = ["decompose", "--format", "native", "--data", data]
+
+    def fails(*argv, expect: str) -> None:
+        capsys.readouterr()
+        assert run(*argv) == 2, argv
+        err = capsys.readouterr().err
+        assert expect in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+
+    fails(*base, "--decomposer", "expert", "--stopping-delta", "-1", "--out", tmp_path / "x.json",
+          expect="stopping_delta must be >= 0")
+    fails(*base, "--decomposer", "uniform", "--option", "n_segments=2.5", "--out", tmp_path / "x.json",
+          expect="n_segments must be a whole number")
+    fails(*base, "--decomposer", "uniform", "--option", "n_segments=0", "--out", tmp_path / "x.json",
+          expect="n_segments must be >= 1")
+    fails(*base, "--decomposer", "expert", "--option", "stoping_delta=0.2", "--out", tmp_path / "x.json",
+          expect="unknown option(s) ['stoping_delta']")
+    fails(*base, "--decomposer", "uvd", "--encoder", "pixels", "--option", "gamma=-1", "--no-cache",
+          "--out", tmp_path / "x.json", expect="gamma must be > 0.0")
+    fails(*base, "--decomposer", "uvd", "--encoder", "pixels", "--option", "min_interval=[3]", "--no-cache",
+          "--out", tmp_path / "x.json", expect="min_interval must be a whole number")
+    fails(*base, "--decomposer", "rdd", "--db", tmp_path / "nodb", "--option", "alpha_x=1",
+          "--out", tmp_path / "x.json", expect="unknown option(s) ['alpha_x']")
+    fails(*base, "--decomposer", "uniform", "--reader-option", "episodes=[1]", "--out", tmp_path / "x.json",
+          expect="--reader-option")
+    assert not (tmp_path / "x.json").exists()
+    (tmp_path / "adir").mkdir()
+    fails(*base, "--decomposer", "uniform", "--out", tmp_path / "adir", expect="is an existing folder")
+    (tmp_path / "afile").write_text("keep me")
+    fails("build-db", "--format", "native", "--data", data, "--encoder", "pixels", "--out", tmp_path / "afile",
+          expect="is an existing file")
+    assert (tmp_path / "afile").read_text() == "keep me"
+    fails(*base, "--decomposer", "uniform", "--out", tmp_path / "afile", expect="--force")
+    assert (tmp_path / "afile").read_text() == "keep me"
+    fails("plot", "--pred", tmp_path / "afile", "--format", "native", "--data", data, "--out", tmp_path / "f.gif",
+          expect="unsupported figure format '.gif'")
+
+    # -v shows the traceback of the same error.
+    capsys.readouterr()
+    assert run("-v", *base, "--decomposer", "uniform", "--option", "n_segments=2.5", "--out", tmp_path / "x.json") == 2
+    assert "Traceback" in capsys.readouterr().err
+
+    # Ctrl-C: status 130, one line, no output file.
+    from rdd.decomposers import uniform
+
+    def interrupted(self, episode):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(uniform.UniformDecomposer, "decompose", interrupted)
+    capsys.readouterr()
+    assert run(*base, "--decomposer", "uniform", "--out", tmp_path / "ctrl_c.json") == 130
+    assert "interrupted" in capsys.readouterr().err and not (tmp_path / "ctrl_c.json").exists()
+
+
+def test_truncated_and_refused_pickles(tmp_path, capsys):
+    import pickle
+
+    ep = tmp_path / "ep"
+    ep.mkdir()
+    (ep / "low_dim_obs.pkl").write_bytes(pickle.dumps([{"a": np.ones(3)}])[:-5])
+    capsys.readouterr()
+    assert run("decompose", "--format", "rlbench", "--data", ep, "--decomposer", "uniform",
+               "--out", tmp_path / "x.json") == 2
+    err = capsys.readouterr().err
+    assert "low_dim_obs.pkl" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    (ep / "low_dim_obs.pkl").write_bytes(b"cos\nsystem\n(S'true'\ntR.")
+    assert run("decompose", "--format", "rlbench", "--data", ep, "--decomposer", "uniform",
+               "--out", tmp_path / "x.json") == 2
+    err = capsys.readouterr().err
+    assert "refusing to load global os.system" in err and "low_dim_obs.pkl" in err and "Traceback" not in err
+
+
+def test_evaluate_validates_and_compares_methods(tmp_path, capsys):
+    def write(name, episodes):
+        path = tmp_path / name
+        path.write_text(json.dumps({"config": {"decomposer": name.split(".")[0]}, "episodes": [
+            {"episode": ep, "num_frames": n, "segments": segs} for ep, n, segs in episodes]}))
+        return path
+
+    gt = write("gt.json", [("a", 10, [[0, 5], [5, 10]]), ("b", 8, [[0, 8]])])
+    good = write("good.json", [("a", 10, [[0, 5], [5, 10]]), ("b", 8, [[0, 4], [4, 8]])])
+    half = write("half.json", [("a", 10, [[0, 10]])])
+    overlap = write("overlap.json", [("a", 10, [[0, 6], [5, 10]]), ("b", 8, [[0, 8]])])
+    outside = write("outside.json", [("a", 10, [[0, 5], [5, 12]]), ("b", 8, [[0, 8]])])
+    for bad, expect in ((overlap, "not a partition"), (outside, "must end at 10")):
+        capsys.readouterr()
+        assert run("evaluate", "--pred", bad, "--gt", gt) == 2
+        err = capsys.readouterr().err
+        assert expect in err and "'a'" in err
+    capsys.readouterr()
+    assert run("evaluate", "--pred", half, "--gt", gt) == 2
+    err = capsys.readouterr().err
+    assert "cover different episodes" in err and "--allow-partial" in err
+    assert run("evaluate", "--pred", f"g={good}", f"h={half}", "--gt", gt, "--allow-partial",
+               "--out", tmp_path / "ev.json") == 0
+    table = capsys.readouterr().out
+    assert "g " in table and "h " in table
+    ev = json.loads((tmp_path / "ev.json").read_text())
+    # Independent values: g is exact on 'a' (1.0) and halves 'b' (IoU 0.5 each) -> mean 0.75;
+    # h predicts one segment on 'a' (IoU 0.5 with either half) and leaves 'b' out.
+    assert ev["methods"]["g"]["mean"]["miou"] == pytest.approx(0.75)
+    assert ev["methods"]["h"]["mean"]["miou"] == pytest.approx(0.5)
+    assert ev["methods"]["h"]["left_out"] == {"pred_only": [], "gt_only": ["b"]}
+    # Two unlabelled files of the same decomposer are ambiguous; the same label merges folds.
+    dup = write("good2.json", [("c", 4, [[0, 4]])])
+    (tmp_path / "good2.json").write_text((tmp_path / "good2.json").read_text().replace('"good2"', '"good"'))
+    assert run("evaluate", "--pred", good, dup, "--gt", gt, "--allow-partial") == 2
+    assert "already labelled 'good'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("suffix,magic", [(".png", b"\x89PNG"), (".pdf", b"%PDF"), (".svg", b"<?xml")])
+def test_plot_format_follows_the_file_name(data, tmp_path, suffix, magic):
+    pred = tmp_path / "u.json"
+    assert run("decompose", "--format", "native", "--data", data, "--include", "ep0", "--decomposer", "uniform",
+               "--option", "n_segments=3", "--out", pred) == 0
+    out = tmp_path / f"fig{suffix}"
+    assert run("plot", "--pred", pred, "--format", "native", "--data", data, "--out", out) == 0
+    assert out.read_bytes()[:len(magic)] == magic
+
+
+def test_outputs_respect_the_umask(data, tmp_path):
+    old = os.umask(0o027)
+    try:
+        assert run("decompose", "--format", "native", "--data", data, "--decomposer", "uniform",
+                   "--option", "n_segments=3", "--out", tmp_path / "u.json") == 0
+    finally:
+        os.umask(old)
+    assert (tmp_path / "u.json").stat().st_mode & 0o777 == 0o640

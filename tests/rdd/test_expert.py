@@ -95,3 +95,42 @@ def test_needs_signals():
     out = ExpertDecomposer().decompose(ep)
     assert out.meta["velocity_source"] == "ee" and out.segments[-1] == (out.segments[-1][0], 12)
     assert out.keyframes[0] == 6  # first still frame after the motion stops
+
+
+def test_scale_aware_stop_test_counts_each_rest_once():
+    """30 fps, noisy joint velocities in rad/s: moving at ~1 rad/s, resting 1 s at frames 60-89 and
+    0.5 s at 150-164, the gripper closing at 120. RLBench's absolute rule fires every 5 frames of a
+    rest; the scale-aware test gives exactly one keyframe per rest, the gripper change and the end."""
+    rng = np.random.default_rng(0)
+    t, fps = 210, 30.0
+    v = 1.0 + 0.2 * rng.standard_normal((t, 7))
+    v[60:90] = 0.02 * rng.standard_normal((30, 7))
+    v[150:165] = 0.02 * rng.standard_normal((15, 7))
+    grip = np.ones(t)
+    grip[120:] = 0.0
+    ep = Episode(name="real", views={}, gripper_open=grip, joint_velocities=v, meta={"fps": fps})
+    out = ExpertDecomposer().decompose(ep)
+    assert out.meta["stop_test"] == "scale"
+    # the smoothing window (3 frames) may move a rest's first frame by one
+    assert len(out.keyframes) == 4
+    assert abs(out.keyframes[0] - 60) <= 1 and out.keyframes[1] == 120 and abs(out.keyframes[2] - 150) <= 1
+    assert out.keyframes[3] == t - 1
+    absolute = ExpertDecomposer(stop_test="absolute").decompose(ep).keyframes
+    assert len([k for k in absolute if 60 <= k < 90]) == 6  # 60, 65, ..., 85
+    # The same motion at 60 fps (twice the frames) gives the same cuts in seconds.
+    ep2 = Episode(name="real60", views={}, gripper_open=np.repeat(grip, 2), joint_velocities=np.repeat(v, 2, axis=0),
+                  meta={"fps": 2 * fps})
+    k2 = ExpertDecomposer().decompose(ep2).keyframes
+    assert len(k2) == 4 and abs(k2[0] - 120) <= 3 and k2[1] == 240  # window 6 frames: within 3
+
+
+def test_expert_options_are_checked():
+    for kwargs, match in [({"stopping_delta": -1}, "stopping_delta must be >= 0"),
+                          ({"stop_test": "magic"}, "stop_test must be one of"),
+                          ({"stopping_fraction": 1.5}, "stopping_fraction must be >= 0.0 and <= 1.0"),
+                          ({"velocity_source": "x"}, "velocity_source")]:
+        with pytest.raises(ValueError, match=match):
+            ExpertDecomposer(**kwargs)
+    ep = Episode(name="x", views={}, gripper_open=np.ones(5), joint_velocities=np.ones((5, 2)))
+    with pytest.raises(ValueError, match="declares no fps"):
+        ExpertDecomposer(stop_test="scale").decompose(ep)

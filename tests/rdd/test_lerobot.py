@@ -114,8 +114,55 @@ def test_real_g1_v21():
     assert [(e.name, e.num_frames) for e in eps] == [("episode_000001", 393), ("episode_000002", 343)]
     e = eps[0]
     assert e.goal == "Pick up the yellow bottle on the table."
-    assert e.joint_positions.shape == (393, 26)
+    # Arm joints inferred from info.json's names: the 14 that are not hand dims (README: 0-13).
+    assert e.joint_positions.shape == (393, 14) and e.meta["joint_indices"] == list(range(14))
     # The right hand closes on the bottle and opens again: both states occur.
     assert set(np.unique(e.gripper_open)) == {0.0, 1.0}
     f = e.frames("cam_high", [0, 392])
     assert f.shape == (2, 48, 64, 3) and f.dtype == np.uint8 and f.std() > 5
+
+
+@pytest.mark.skipif(not G1.exists(), reason="../shared/data/lerobot is absent")
+def test_real_g1_inferred_hands():
+    """No options: hands inferred per side from the names (README: left 14-19, right 20-25); the
+    right hand closes on the bottle once and opens once, the left rests, so the flag (fraction of
+    hands open) changes exactly twice per episode."""
+    from rdd.data.lerobot import describe_layout
+
+    for e in load_episodes(G1, skip_missing=True):
+        g = e.meta["gripper"]
+        assert g["sides"] == ["left", "right"]
+        assert g["indices"] == [list(range(14, 20)), list(range(20, 26))]
+        assert int(np.count_nonzero(np.diff(e.gripper_open))) == 2
+        assert "dims [0, 1, 2" in describe_layout(e) and "right [20, 21" in describe_layout(e)
+
+
+def test_names_inference_and_options(tmp_path, caplog):
+    from rdd.data.lerobot import check_reader_options, feature_names, hand_flags, infer_layout
+
+    names = ["l_shoulder", "left_elbow", "left_gripper", "right_elbow", "RightHandIndex", "right_finger2", "waist"]
+    assert infer_layout(names) == ([0, 1, 3, 6], {"left": [2], "right": [4, 5]})
+    info = {"features": {"s": {"names": {"motors": ["a", "b"]}}, "t": {"names": [["x", "y"]]}, "u": {"names": None}}}
+    assert feature_names(info, "s") == ["a", "b"] and feature_names(info, "t") == ["x", "y"]
+    assert feature_names(info, "u") is None and feature_names(info, "nope") is None
+    # Hysteresis: a level hovering around the threshold does not flicker; a real close/open does.
+    level = np.array([0.49, 0.51, 0.49, 0.52, 0.2, 0.3, 0.52, 0.6, 0.9])
+    assert hand_flags(level[:, None], [[0]], 0.5, 0.05, True, "x")[:, 0].tolist() == [0, 0, 0, 0, 0, 0, 0, 1, 1]
+    assert hand_flags(level[:, None], [[0]], 0.5, 0.0, True, "x")[:, 0].tolist() == [0, 1, 0, 1, 0, 0, 1, 1, 1]
+    for bad, match in [({"gripper_indx": [1]}, "unknown LeRobot reader option"),
+                       ({"gripper_indices": [1.5]}, "gripper_indices"),
+                       ({"gripper_indices": []}, "gripper_indices"),
+                       ({"max_side": 0}, "max_side"), ({"skip_missing": "yes"}, "skip_missing"),
+                       ({"gripper_threshold": "high"}, "gripper_threshold"),
+                       ({"camera_keys": "observation.images.top"}, "camera_keys")]:
+        with pytest.raises(ValueError, match=match):
+            check_reader_options(bad)
+    make_v30(tmp_path)
+    with pytest.raises(ValueError, match="gripper_key='observation.state'.*3 dims.*gripper_indices"):
+        load_episodes(tmp_path, gripper_key="observation.state")
+    with pytest.raises(ValueError, match="episodes: \\[9\\]"):
+        load_episodes(tmp_path, episodes=[9])
+    with caplog.at_level("WARNING"):
+        eps = load_episodes(tmp_path, gripper_key="observation.state", gripper_indices=[1])
+    assert "never changes" in caplog.text and "gripper_threshold" in caplog.text
+    assert eps[0].gripper_open.tolist() == [0.0] * 6
