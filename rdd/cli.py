@@ -78,6 +78,15 @@ def check_output(path: str | Path | None, flag: str, force: bool, kind: str = "f
     return path
 
 
+def progress(items, desc: str):
+    """A tqdm bar over ``items`` on stderr (a terminal only); frames-aware bars: ``track_episodes``."""
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover - tqdm is a dependency
+        return items
+    return tqdm(items, desc=desc, file=sys.stderr, disable=None, dynamic_ncols=True)
+
+
 def write_json_atomic(path: str | Path, data: Any, overwrite: bool = True) -> Path:
     """Write ``data`` as compact JSON to ``path`` atomically (``rdd.atomic``)."""
     return _write_json(path, data, overwrite=overwrite, dumps=dumps_compact)
@@ -309,7 +318,7 @@ def fallback_instruction(template: str, episode: Episode, index: int, count: int
                        + ", ".join("{" + f + "}" for f in FALLBACK_FIELDS)) from exc
 
 
-def episode_record(episode: Episode, result, fallback: str | None = None) -> dict[str, Any]:
+def episode_record(episode: Episode, result) -> dict[str, Any]:
     """One episode's entry in the ``decompose`` output."""
     from rdd.segments import validate_segments
 
@@ -317,12 +326,6 @@ def episode_record(episode: Episode, result, fallback: str | None = None) -> dic
     instructions = getattr(result, "instructions", None)
     if instructions is None and result.neighbours is not None:
         instructions = [n.get("instruction") for n in result.neighbours]
-    sources = None
-    if fallback is not None:
-        given = list(instructions) if instructions is not None else [None] * len(segments)
-        sources = ["decomposer" if isinstance(t, str) and t.strip() else "fallback" for t in given]
-        instructions = [t if src == "decomposer" else fallback_instruction(fallback, episode, j, len(segments), seg)
-                        for j, (t, src, seg) in enumerate(zip(given, sources, segments, strict=True))]
     return {
         "episode": episode.name,
         "num_frames": episode.num_frames,
@@ -330,9 +333,51 @@ def episode_record(episode: Episode, result, fallback: str | None = None) -> dic
         "keyframes": [e - 1 for _, e in segments],
         "scores": None if result.scores is None else [float(x) for x in result.scores],
         "instructions": None if instructions is None else ["" if t is None else str(t) for t in instructions],
-        "instruction_sources": sources,
+        "instruction_sources": None,
         "novelty": None if result.novelty is None else float(result.novelty),
     }
+
+
+def fill_instructions(record: dict[str, Any], episode: Episode, labeler=None, fallback: str | None = None) -> None:
+    """Give every segment without an instruction the labeler's, else the fallback's (recording which)."""
+    if labeler is None and fallback is None:
+        return
+    segments = [tuple(s) for s in record["segments"]]
+    given = record["instructions"] or [""] * len(segments)
+    sources = ["decomposer" if t and t.strip() else None for t in given]
+    texts = list(given)
+    missing = [j for j, src in enumerate(sources) if src is None]
+    if labeler is not None and missing:
+        for j, text in zip(missing, labeler.label_all(episode, [segments[j] for j in missing]), strict=True):
+            if text and text.strip():
+                texts[j], sources[j] = text, "labeler"
+    if fallback is not None:
+        for j, src in enumerate(sources):
+            if src is None:
+                texts[j] = fallback_instruction(fallback, episode, j, len(segments), segments[j])
+                sources[j] = "fallback"
+    record["instructions"], record["instruction_sources"] = texts, sources
+
+
+def make_labeler(args: argparse.Namespace):
+    """``--labeler retrieval``: the nearest entry of ``--label-db`` (default ``--db``) names a segment."""
+    if args.labeler is None:
+        return None
+    from rdd.database import SubtaskDatabase
+    from rdd.retrieval_labeler import RetrievalLabeler
+
+    path = args.label_db or args.db
+    if not path:
+        raise CLIError("--labeler retrieval needs --label-db DIR (a database whose entries carry instructions)")
+    db = SubtaskDatabase.load(path)
+    enc_name = db.meta.get("encoder")
+    if not enc_name:
+        raise CLIError(f"--label-db {path} records no encoder")
+    encoder = make_encoder(enc_name, parse_options(args.encoder_option, "--encoder-option"))
+    try:
+        return RetrievalLabeler(db, encoder, cache=make_cache(args))
+    except ValueError as exc:
+        raise CLIError(f"--label-db {path}: {exc}") from exc
 
 
 def lerobot_subtasks(episodes: Sequence[Episode], records: Sequence[dict[str, Any]], decomposer: str,
@@ -346,7 +391,8 @@ def lerobot_subtasks(episodes: Sequence[Episode], records: Sequence[dict[str, An
             raise CLIError(
                 f"--write-lerobot: decomposer {decomposer} gives no instruction for segments {empty} of episode "
                 f"{ep.name!r} (rdd takes them from its database's entries: build it from annotated episodes); "
-                "pass --fallback-instruction TEMPLATE, e.g. '{task} (step {index} of {count})'"
+                "pass --labeler retrieval --label-db DB (a database with instructions) or "
+                "--fallback-instruction TEMPLATE, e.g. '{task} (step {index} of {count})'"
             )
         out[int(ep.meta["episode_index"])] = ([tuple(s) for s in rec["segments"]], list(instr))
     return out
@@ -366,14 +412,18 @@ def cmd_decompose(args: argparse.Namespace) -> int:
         fallback_instruction(args.fallback_instruction, Episode(name="check", views={}), 0, 1, (0, 1))
     episodes = load_data(args)
     decomposer, config = make_decomposer(args, episodes[0])
+    labeler = make_labeler(args)
     config.update(format=args.format, data=str(args.data), version=OUTPUT_VERSION,
-                  fallback_instruction=args.fallback_instruction)
+                  fallback_instruction=args.fallback_instruction, labeler=args.labeler,
+                  label_db=None if labeler is None else str(args.label_db or args.db))
     if args.decomposer in ("rdd", "uvd"):
         embed_all(episodes, decomposer.encoder, decomposer.views, getattr(decomposer, "cache", None))
     records = []
     for ep in track_episodes(episodes, f"decompose ({args.decomposer})"):
         try:
-            records.append(episode_record(ep, decomposer.decompose(ep), args.fallback_instruction))
+            record = episode_record(ep, decomposer.decompose(ep))
+            fill_instructions(record, ep, labeler, args.fallback_instruction)
+            records.append(record)
         except ValueError as exc:
             raise CLIError(f"episode {ep.name!r} ({args.data}): {exc}") from exc
     subtasks = lerobot_subtasks(episodes, records, args.decomposer) if lerobot_out is not None else None
@@ -583,6 +633,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--write-lerobot", metavar="DIR",
                    help="also write DIR, a copy of the LeRobot dataset --data whose language_persistent "
                         "column carries the sub-tasks (new folder; never the source)")
+    p.add_argument("--labeler", choices=("retrieval",),
+                   help="name segments the decomposer gives no instruction: retrieval = the instruction of "
+                        "the nearest entry of --label-db")
+    p.add_argument("--label-db", metavar="DIR", help="database for --labeler retrieval (default --db)")
     p.add_argument("--fallback-instruction", metavar="TEMPLATE",
                    help="instruction for segments the decomposer gives none, with fields "
                         + ", ".join("{" + f + "}" for f in FALLBACK_FIELDS))

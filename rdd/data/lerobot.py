@@ -546,7 +546,6 @@ def load_episode(
             "source": str(ds.root),
             "episode_index": ep,
             "fps": ds.fps,
-            "timestamps": timestamps,
             "robot_type": ds.info.get("robot_type"),
             "joint_velocities_derived": joint_velocities is not None,
             "joint_indices": None if joint_indices is None else list(joint_indices),

@@ -153,6 +153,14 @@ def test_round_trip_through_the_cli(lerobot_factory, tmp_path, capsys, version):
         assert set(r["instructions"]) <= set(db.labels)
         assert back[r["episode"]].segments == [tuple(s) for s in r["segments"]]
         assert back[r["episode"]].instructions == r["instructions"]
+    # A decomposer without instructions may name a labeler: the nearest entry's instruction.
+    assert run("decompose", "--format", "lerobot", "--data", src, "--decomposer", "uniform", "--option",
+               "n_segments=2", "--labeler", "retrieval", "--label-db", tmp_path / "db", "--encoder-option", "size=4",
+               *cache, "--out", tmp_path / "l.json", "--write-lerobot", tmp_path / "labelled") == 0
+    recs = json.loads((tmp_path / "l.json").read_text())["episodes"]
+    assert all(r["instruction_sources"] == ["labeler", "labeler"] for r in recs)
+    assert all(set(r["instructions"]) <= set(db.labels) for r in recs)
+    assert [e.instructions for e in load_episodes(tmp_path / "labelled")] == [r["instructions"] for r in recs]
 
 
 def test_cli_write_refusals(lerobot_factory, tmp_path, capsys):
