@@ -597,6 +597,21 @@ def reader_help() -> str:
     return "\n".join(lines)
 
 
+def decomposer_help() -> str:
+    """Each decomposer's ``--option`` keys and defaults, read from its constructor."""
+    import importlib
+
+    lines = ["decomposer options (--option KEY=VALUE):"]
+    reserved = {"self", "database", "encoder", "views", "cache"}
+    for name, (module, cls) in {"expert": ("expert", "ExpertDecomposer"), "uniform": ("uniform", "UniformDecomposer"),
+                                "uvd": ("uvd", "UVDDecomposer"), "rdd": ("rdd", "RDDDecomposer")}.items():
+        init = getattr(importlib.import_module(f"rdd.decomposers.{module}"), cls).__init__
+        params = [p for p in inspect.signature(init).parameters.values() if p.name not in reserved]
+        lines.append(f"  {name}: " + ", ".join(f"{p.name}={p.default!r}" for p in params))
+    lines.append("  vlm: see rdd/decomposers/vlm.py (backend, base_url, model, checkpoint, ...)")
+    return "\n".join(lines)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``python -m rdd``."""
     parser = argparse.ArgumentParser(prog="python -m rdd", description=__doc__.splitlines()[0])
@@ -617,7 +632,9 @@ def build_parser() -> argparse.ArgumentParser:
     _force_arg(p)
     p.set_defaults(func=cmd_build_db)
 
-    p = sub.add_parser("decompose", help="decompose episodes into sub-task segments", **fmt)
+    p = sub.add_parser("decompose", help="decompose episodes into sub-task segments",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=decomposer_help() + "\n\n" + reader_help())
     _data_args(p)
     p.add_argument("--decomposer", choices=DECOMPOSERS, required=True)
     p.add_argument("--encoder", help="encoder for rdd/uvd (rdd: default the database's)")

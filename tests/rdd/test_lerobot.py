@@ -166,3 +166,19 @@ def test_names_inference_and_options(tmp_path, caplog):
         eps = load_episodes(tmp_path, gripper_key="observation.state", gripper_indices=[1])
     assert "never changes" in caplog.text and "gripper_threshold" in caplog.text
     assert eps[0].gripper_open.tolist() == [0.0] * 6
+
+
+@pytest.mark.skipif(not G1.exists(), reason="../shared/data/lerobot is absent")
+def test_real_g1_expert_rule_through_the_cli(tmp_path, capsys):
+    """Issue 14's first attempt: gripper_key=observation.state now uses the inferred hand dims, and
+    the expert rule does not shatter the episodes (it gave 24-48 five-frame segments)."""
+    from rdd.cli import main
+
+    out = tmp_path / "expert.json"
+    assert main(["decompose", "--format", "lerobot", "--data", str(G1), "--reader-option", "skip_missing=true",
+                 "--reader-option", "gripper_key=observation.state", "--decomposer", "expert",
+                 "--out", str(out)]) == 0
+    assert "right [20, 21, 22, 23, 24, 25] (inferred)" in capsys.readouterr().err
+    for rec in json.loads(out.read_text())["episodes"]:
+        lengths = [e - s for s, e in rec["segments"]]
+        assert 3 <= len(lengths) <= 12 and min(lengths) >= 6  # 0.2 s at 30 fps
