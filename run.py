@@ -7,7 +7,9 @@ sweepers can use it.
 
 from __future__ import annotations
 
+import importlib.util
 import logging
+import sys
 
 import hydra
 from omegaconf import DictConfig
@@ -31,6 +33,22 @@ def main(cfg: DictConfig) -> float | None:
     return summary.get("main_metric")
 
 
+# Launchers of the `cluster` extra, and the module each needs.
+CLUSTER_LAUNCHERS = {"slurm": "hydra_plugins.hydra_submitit_launcher",
+                     "slurm_local": "hydra_plugins.hydra_submitit_launcher", "ray": "ray"}
+
+
+def check_launcher(argv: list[str]) -> None:
+    """Exit with the install line when ``hydra/launcher=...`` names a launcher whose extra is missing."""
+    from hydra_plugins.rdd_ray_launcher.ray_launcher import INSTALL_LINE
+
+    for arg in argv:
+        name = arg.partition("hydra/launcher=")[2] if arg.lstrip("+").startswith("hydra/launcher=") else ""
+        module = CLUSTER_LAUNCHERS.get(name)
+        if module is not None and importlib.util.find_spec(module) is None:
+            sys.exit(f"hydra/launcher={name} needs the cluster extra ({module} is missing): {INSTALL_LINE}")
+
+
 def _output_dir() -> str:
     from hydra.core.hydra_config import HydraConfig
 
@@ -41,4 +59,5 @@ def _output_dir() -> str:
 
 
 if __name__ == "__main__":
+    check_launcher(sys.argv[1:])
     main()

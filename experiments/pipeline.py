@@ -65,10 +65,28 @@ def _set_threads(cfg: DictConfig, n_jobs: int) -> int:
 
     threads = cfg.threads
     if threads is None:
-        cores = os.cpu_count() or 1
-        threads = max(1, cores // max(1, n_jobs if n_jobs > 0 else cores))
+        threads = _default_threads(n_jobs)
     torch.set_num_threads(int(threads))
     return int(threads)
+
+
+def _default_threads(n_jobs: int) -> int:
+    """Torch threads for a job: its share of the CPUs it may use, as its launcher allotted them.
+
+    joblib sweeps split this machine between ``n_jobs``; a Slurm job gets ``SLURM_CPUS_PER_TASK``,
+    a Ray task ``OMP_NUM_THREADS`` (Ray sets it to the task's ``num_cpus``); otherwise every CPU in
+    the process's affinity mask (a cgroup or ``taskset`` limit), not every core of the node.
+    """
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if n_jobs <= 0:  # joblib's n_jobs=-1: one job per core
+        return 1
+    if n_jobs > 1:
+        return max(1, cores // n_jobs)
+    for var in ("SLURM_CPUS_PER_TASK", "OMP_NUM_THREADS"):
+        value = os.environ.get(var, "")
+        if value.isdigit() and int(value) > 0:
+            return min(int(value), cores)
+    return max(1, cores)
 
 
 def _hardware() -> dict[str, Any]:

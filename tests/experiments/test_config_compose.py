@@ -87,10 +87,21 @@ def test_experiment_composes(experiment: str):
     OmegaConf.to_container(cfg, resolve=False)  # every node is well formed
 
 
-@pytest.mark.parametrize("launcher", ["local", "slurm", "ray", "joblib"])
+@pytest.mark.parametrize("launcher", ["local", "slurm", "slurm_local", "ray", "joblib"])
 def test_launchers_compose(launcher: str):
+    if launcher.startswith("slurm"):  # their schema comes with the plugin
+        pytest.importorskip("hydra_plugins.hydra_submitit_launcher",
+                            reason="needs the cluster extra: pip install -c constraints.txt -e '.[cluster]'")
     cfg = _compose([f"hydra/launcher={launcher}"], hydra=True)
     assert "_target_" in cfg.hydra.launcher
+    if launcher == "local":
+        assert cfg.hydra.launcher.n_jobs == 2
+    if launcher == "slurm":  # the keys a lab sets are typed: a misspelt one fails at compose time
+        cfg = _compose(["hydra/launcher=slurm", "hydra.launcher.partition=gpu",
+                        "hydra.launcher.cpus_per_task=8"], hydra=True)
+        assert (cfg.hydra.launcher.partition, cfg.hydra.launcher.cpus_per_task) == ("gpu", 8)
+        with pytest.raises(ConfigCompositionException):
+            _compose(["hydra/launcher=slurm", "hydra.launcher.partiton=gpu"], hydra=True)
 
 
 @pytest.mark.parametrize("override", [

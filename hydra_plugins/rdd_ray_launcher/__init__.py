@@ -1,0 +1,1 @@
+"""Hydra launcher that runs each sweep job as a Ray task, on a local Ray cluster or an existing one."""
