@@ -2,8 +2,9 @@
 
 Entries are ``.npz`` files holding the embeddings and a SHA-256 of their bytes; a file that fails to
 load, fails its checksum or has the wrong shape is treated as a miss, recomputed and rewritten.
-Writes go to a temporary file in the same folder and are moved into place with ``os.replace``, so a
-reader never sees a half-written entry, and two processes filling the same entry cannot corrupt it.
+Writes go through :func:`rdd.atomic.atomic_file` (a temporary file in the same folder, renamed into
+place, with the umask's permissions), so a reader never sees a half-written entry, and two
+processes filling the same entry cannot corrupt it.
 """
 
 from __future__ import annotations
@@ -12,12 +13,12 @@ import hashlib
 import json
 import logging
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from rdd.atomic import atomic_file
 from rdd.data.episode import Episode
 from rdd.encoders.base import Encoder
 
@@ -112,20 +113,11 @@ class EmbeddingCache:
         return emb
 
     def _write(self, path: Path, emb: np.ndarray, fields: dict) -> None:
-        """Atomically store ``emb`` with its checksum and key fields at ``path``."""
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.stem + ".", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(
-                    fh,
-                    embeddings=emb,
-                    checksum=np.array(self._checksum(emb)),
-                    key=np.array(json.dumps(fields, sort_keys=True)),
-                )
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        """Atomically store ``emb`` with its checksum and key fields at ``path`` (``rdd.atomic``)."""
+        with atomic_file(path, "wb") as fh:
+            np.savez(
+                fh,
+                embeddings=emb,
+                checksum=np.array(self._checksum(emb)),
+                key=np.array(json.dumps(fields, sort_keys=True)),
+            )
