@@ -192,3 +192,16 @@ def test_build_db_segments_default_and_required(lerobot_factory, tmp_path, capsy
     assert run("build-db", "--format", "lerobot", "--data", src, *enc, "--out", tmp_path / "db") == 2
     assert "--force" in capsys.readouterr().err
     assert run("build-db", "--format", "lerobot", "--data", src, *enc, "--out", tmp_path / "db", "--force") == 0
+
+
+def test_reader_option_typos_are_one_line_errors(lerobot_factory, tmp_path, capsys):
+    src = lerobot_factory("v3.0")
+    for option, expect in [("gripper_indx=[3]", "unknown LeRobot reader option(s) ['gripper_indx']"),
+                           ("gripper_indices=3", "gripper_indices=3: expected"),
+                           ("episodes=[7]", "episodes: [7] are not listed")]:
+        capsys.readouterr()
+        assert run("decompose", "--format", "lerobot", "--data", src, "--reader-option", option,
+                   "--decomposer", "expert", "--out", tmp_path / "x.json") == 2
+        err = capsys.readouterr().err
+        assert expect in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "x.json").exists()
