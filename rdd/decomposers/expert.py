@@ -176,7 +176,9 @@ class ExpertDecomposer(Decomposer):
     def decompose(self, episode: Episode) -> Decomposition:
         """Segments ending at the expert keyframes (the last frame always ends one)."""
         if episode.gripper_open is None:
-            raise ValueError(f"episode {episode.name!r} has no gripper_open signal for the expert rule")
+            raise ValueError(f"episode {episode.name!r} has no gripper_open signal for the expert rule "
+                             "(LeRobot: name the gripper dims with --reader-option gripper_key=... "
+                             "gripper_indices=[...])")
         velocities, delta, source = self._velocities(episode)
         fps = episode.meta.get("fps")
         test = self.stop_test
