@@ -10,7 +10,8 @@ A waiter takes a lock over when its owner is gone:
 - on any host, when the lock file's mtime has not moved for ``stale_after_s`` seconds of the
   waiter's own clock (a dead node). Only the waiter's monotonic clock is used, so clock skew between
   hosts does not matter. A job that is paused (SIGSTOP, a suspended Slurm job) for longer than that
-  loses its lock.
+  loses its lock. Assumed: one host name per pid namespace (containers that share a host name and a
+  cache folder but not their pids would take each other's locks over; only work is lost then).
 
 Mutual exclusion here only saves work (a stage built once instead of twice). Correctness never
 depends on it: finished outputs appear by an atomic rename that refuses to replace an existing
