@@ -1,6 +1,6 @@
 """``python -m rdd``: build a sub-task database, decompose demonstrations, evaluate, plot.
 
-Subcommands: ``build-db``, ``decompose``, ``evaluate``, ``plot``, ``demo``. Every expected failure
+Subcommands: ``build-db``, ``calibrate``, ``decompose``, ``evaluate``, ``plot``, ``demo``. Every expected failure
 is reported as one line naming the file or option at fault, with exit status 2 (``-v`` also prints
 the traceback); Ctrl-C stops with status 130 and leaves no partial output. Outputs are written
 atomically and never replace an existing file or folder without ``--force``.
@@ -199,7 +199,8 @@ def save_database(db, out: Path, force: bool) -> Path:
 
 # ----------------------------------------------------------------------------- build-db
 def cmd_build_db(args: argparse.Namespace) -> int:
-    """Segment episodes (their sub-task annotations or the expert rule) and build the database."""
+    """Segment episodes (their sub-task annotations or the expert rule), build and calibrate the database."""
+    from rdd.calibrate import CalibrationError, calibrate, sample_episodes, summary
     from rdd.database import SubtaskDatabase
 
     out = check_output(args.out, "--out", args.force, kind="dir")
@@ -231,15 +232,82 @@ def cmd_build_db(args: argparse.Namespace) -> int:
         instructions = None
     print(f"segments: {source} ({sum(len(s) for s in segmentations)} sub-tasks in {len(episodes)} episodes)",
           file=sys.stderr)
+    names = [e.name for e in episodes]
+    keep: list[str] = []
+    if args.no_calibrate:
+        pass
+    elif len(set(names)) < 2:
+        print(f"warning: calibration skipped: --data {args.data} has one episode, nothing to leave out",
+              file=sys.stderr)
+    else:
+        try:
+            keep = sample_episodes(names, args.calibration_sample, args.calibration_seed)
+        except CalibrationError as exc:
+            raise CLIError(f"--calibration-sample: {exc}") from exc
     cache = make_cache(args)
-    embed_all(episodes, encoder, views, cache)
+    # Only each segment's first and last frame are encoded, except for the calibration sample.
+    embed_all([e for e in episodes if e.name in keep], encoder, views, cache)
     db = SubtaskDatabase.build(episodes, segmentations, encoder, views=views, cache=cache,
-                               instructions=instructions)
+                               instructions=instructions, normalize_views=not args.raw_views,
+                               keep_frames=keep)
     db.meta["source"] = {"format": args.format, "data": str(args.data),
-                         "episodes": [e.name for e in episodes], "segmenter": source}
+                         "episodes": names, "segmenter": source}
+    if keep:
+        try:
+            db.meta["calibration"] = calibrate(db, sample=args.calibration_sample,
+                                               seed=args.calibration_seed,
+                                               progress=lambda xs: progress(xs, "calibration"))
+        except CalibrationError as exc:
+            raise CLIError(str(exc)) from exc
     out = save_database(db, out, args.force)
     print(f"built database {out}: {len(db)} sub-tasks from {len(episodes)} episodes "
           f"(encoder {encoder.name}, views {list(views)}, segments {source})")
+    if db.meta.get("calibration"):
+        print(summary(db.meta["calibration"]))
+    return 0
+
+
+def _grid_values(text: str | None, flag: str, cast) -> list | None:
+    if text is None:
+        return None
+    values = []
+    for item in text.split(","):
+        item = item.strip()
+        if not item:
+            continue
+        try:
+            values.append(None if item.lower() == "none" else cast(item))
+        except ValueError as exc:
+            raise CLIError(f"{flag} {text!r}: {item!r} is not a valid value") from exc
+    if not values:
+        raise CLIError(f"{flag} {text!r}: the grid is empty (give comma-separated values)")
+    return values
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """Rerun leave-one-episode-out calibration on a saved database; record it in its manifest."""
+    from rdd.calibrate import CalibrationError, calibrate, default_grid, summary
+    from rdd.database import SubtaskDatabase
+
+    db = SubtaskDatabase.load(args.db)
+    grid = default_grid(db)
+    for key, flag, cast in (("alpha", "--alpha", float), ("min_len", "--min-len", int),
+                            ("max_len", "--max-len", int)):
+        values = _grid_values(getattr(args, key), flag, cast)
+        if values is not None:
+            grid[key] = values
+    try:
+        cal = calibrate(db, grid=grid, sample=args.sample, seed=args.seed, backend=args.backend,
+                        progress=lambda xs: progress(xs, "calibration"))
+    except CalibrationError as exc:
+        raise CLIError(f"--db {args.db}: {exc}") from exc
+    if cal is None:
+        print(f"warning: calibration skipped: --db {args.db} holds one episode, nothing to leave out",
+              file=sys.stderr)
+        return 0
+    db.save_calibration(cal)
+    print(summary(cal))
+    print(f"recorded in {Path(args.db) / 'manifest.json'}")
     return 0
 
 
@@ -293,10 +361,14 @@ def make_decomposer(args: argparse.Namespace, first: Episode):
                 kwargs["alpha"] = args.alpha
             if args.max_len is not None:
                 kwargs["max_len"] = args.max_len
-            dec = RDDDecomposer(db, encoder=encoder, views=views, cache=cache, **kwargs)
+            # The database's calibrated alpha/min_len/max_len unless given here (or --no-calibration).
+            calibrated = bool(db.meta.get("calibration")) and not args.no_calibration
+            dec = RDDDecomposer(db, encoder=encoder, views=views, cache=cache,
+                                use_calibration=calibrated, **kwargs)
             config.update(encoder=encoder.name, weights_id=encoder.weights_id, views=list(views),
                           db=str(args.db), db_fingerprint=db.fingerprint(), db_size=len(db),
-                          alpha=dec.alpha, max_len=dec.max_len, mode=dec.mode, backend=dec.index.name)
+                          alpha=dec.alpha, min_len=dec.min_len, max_len=dec.max_len, mode=dec.mode,
+                          beta=dec.beta, backend=dec.index.name, option_source=dec.option_source)
             return dec, config
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ValueError) and "option" not in str(exc) and "must be" not in str(exc):
@@ -630,7 +702,25 @@ def build_parser() -> argparse.ArgumentParser:
                         "or the expert rule; auto: annotations when every episode has them")
     p.add_argument("--out", required=True, help="database directory")
     _force_arg(p)
+    p.add_argument("--no-calibrate", action="store_true",
+                   help="skip leave-one-episode-out calibration (embeds only segment boundary frames)")
+    p.add_argument("--calibration-sample", type=int, default=10, metavar="N",
+                   help="episodes held out in turn by calibration (default 10)")
+    p.add_argument("--calibration-seed", type=int, default=0)
+    p.add_argument("--raw-views", action="store_true",
+                   help="concatenate raw per-view embeddings (the official code) instead of L2-normalised ones")
     p.set_defaults(func=cmd_build_db)
+
+    p = sub.add_parser("calibrate", help="rerun leave-one-episode-out calibration of a database")
+    p.add_argument("--db", required=True, help="database directory (built without --no-calibrate)")
+    p.add_argument("--alpha", help="comma-separated alpha grid (default 0,0.1,0.25,0.5,1,2)")
+    p.add_argument("--min-len", help="comma-separated min_len grid (default 2,4)")
+    p.add_argument("--max-len", help="comma-separated max_len grid, 'none' = unbounded "
+                   "(default none and 1.25x, 2x the longest stored segment)")
+    p.add_argument("--sample", type=int, default=10, help="episodes held out in turn (default 10)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--backend", default="exact", help="retrieval backend for calibration")
+    p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("decompose", help="decompose episodes into sub-task segments",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -641,6 +731,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--db", help="sub-task database directory (rdd)")
     p.add_argument("--alpha", type=float, help="rdd: weight of the duration term")
     p.add_argument("--max-len", type=int, help="rdd: longest segment in frames")
+    p.add_argument("--no-calibration", action="store_true",
+                   help="rdd: ignore the database's calibrated options (use the paper's: alpha 1, "
+                        "min_len 2, no max_len)")
     p.add_argument("--option", action="append", metavar="KEY=VALUE",
                    help="decomposer keyword, e.g. n_segments=5 (uniform), min_interval=10 (uvd), "
                         "stopping_fraction=0.1 (expert); unknown keys and bad values are errors")

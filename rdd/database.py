@@ -1,24 +1,25 @@
 """The sub-task vector database: begin/end frame vectors of expert-labelled training sub-tasks.
 
 On disk a database is a directory with ``begin.npy``, ``end.npy``, ``durations.npy``,
-``entries.json`` (episode, task, instruction, start, end per entry) and ``manifest.json``
-(format version, encoder name and weights hash, views, dimensions, entry count, sha256 checksums).
-Files are written to temporary names and renamed, the manifest last, so a crash never leaves a
-directory that loads.
+``entries.json`` (episode, task, instruction, start, end per entry), optionally ``frames.npz``
+(every frame vector of the episodes kept for calibration) and ``manifest.json`` (format version,
+encoder name and weights hash, views, ``normalize_views``, dimensions, entry count, sha256
+checksums, the calibration's chosen options and scores). The directory is written whole through
+``rdd.atomic.atomic_dir``: it appears complete or not at all, and an existing one is replaced only
+with ``overwrite=True``.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from rdd.atomic import atomic_dir, write_json_atomic
 from rdd.data.episode import Episode
 from rdd.data.frames import update_with_file
 from rdd.encoders.base import Encoder
@@ -29,6 +30,7 @@ FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
 _ARRAYS = ("begin.npy", "end.npy", "durations.npy")
 _ENTRIES = "entries.json"
+_FRAMES = "frames.npz"
 _PER_ENTRY = ("episodes", "tasks", "starts", "ends")
 
 
@@ -38,19 +40,6 @@ class DatabaseError(ValueError):
 
 def _sha256(path: Path) -> str:
     return update_with_file(hashlib.sha256(), path).hexdigest()
-
-
-def _atomic_write(path: Path, write) -> None:
-    """Write via ``write(file_object)`` to a temporary file beside ``path``, then rename it."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 class SubtaskDatabase:
@@ -77,6 +66,8 @@ class SubtaskDatabase:
         self.starts = starts
         self.ends = ends
         self.meta = meta
+        # Every frame vector of some episodes (name -> (T, D)), kept for leave-one-out calibration.
+        self.frames: dict[str, np.ndarray] = {}
         self.directory: Path | None = None  # set by save()/load(); backends may cache beside it
 
     # ----------------------------------------------------------------- construction
@@ -147,12 +138,19 @@ class SubtaskDatabase:
         views: Sequence[str] = DEFAULT_VIEWS,
         cache=None,
         instructions: Sequence[Sequence[str]] | None = None,
+        normalize_views: bool = True,
+        keep_frames: Sequence[str] = (),
     ) -> SubtaskDatabase:
         """Embed ``episodes`` and add one entry per segment of their segmentation.
 
+        Only the frames the entries need (each segment's first and last) are encoded, except for
+        the episodes named in ``keep_frames``: those are embedded whole and their frame vectors
+        kept in ``self.frames`` (leave-one-out calibration decomposes them).
         ``segmentations``: one list of segments per episode, or None to use each ``episode.segments``.
         Instructions come from ``instructions`` when given, else from ``episode.instructions`` when
-        the segmentation is the episode's own (or the episode has none), else are empty.
+        the segmentation is the episode's own (or the episode has none), else the episode's goal
+        (e.g. an RLBench variation description or a LeRobot task string) for every segment.
+        ``normalize_views=False`` concatenates raw per-view embeddings (the official code's layout).
         """
         if segmentations is not None and len(segmentations) != len(episodes):
             raise ValueError(
@@ -160,8 +158,15 @@ class SubtaskDatabase:
             )
         if instructions is not None and len(instructions) != len(episodes):
             raise ValueError(f"{len(instructions)} instruction lists given for {len(episodes)} episodes")
+        names = [ep.name for ep in episodes]
+        unknown = sorted(set(keep_frames) - set(names))
+        if unknown:
+            raise ValueError(f"keep_frames names episodes that are not being built: {unknown}")
+        if len(set(names)) != len(names) and keep_frames:
+            raise ValueError("episode names must be unique to keep frames for calibration")
         begin, end, durations, labels = [], [], [], []
         meta_lists: dict[str, list] = {k: [] for k in _PER_ENTRY}
+        frames: dict[str, np.ndarray] = {}
         for i, ep in enumerate(episodes):
             segs = segmentations[i] if segmentations is not None else ep.segments
             if segs is None:
@@ -178,15 +183,23 @@ class SubtaskDatabase:
                 # the episode's instructions describe this segmentation (its own, or it has none)
                 instr = list(ep.instructions)
             else:
-                instr = [""] * len(segs)
+                instr = [ep.goal or ""] * len(segs)
             if len(instr) != len(segs):
                 raise ValueError(
                     f"episode {ep.name!r}: {len(instr)} instructions for {len(segs)} segments"
                 )
-            fv = episode_frame_vectors(ep, encoder, views=views, cache=cache)
+            if ep.name in keep_frames:
+                fv = episode_frame_vectors(ep, encoder, views=views, cache=cache, normalize=normalize_views)
+                frames[ep.name] = fv
+                rows = {f: f for f in range(ep.num_frames)}
+            else:
+                needed = sorted({f for s, e in segs for f in (s, e - 1)})
+                fv = episode_frame_vectors(ep, encoder, views=views, cache=cache,
+                                           normalize=normalize_views, frames=needed)
+                rows = {f: r for r, f in enumerate(needed)}
             for (s, e), text in zip(segs, instr, strict=True):
-                begin.append(fv[s])
-                end.append(fv[e - 1])
+                begin.append(fv[rows[s]])
+                end.append(fv[rows[e - 1]])
                 durations.append(e - 1 - s)
                 labels.append(text)
                 meta_lists["episodes"].append(ep.name)
@@ -199,9 +212,12 @@ class SubtaskDatabase:
             "encoder": encoder.name,
             "weights_id": encoder.weights_id,
             "views": list(views),
+            "normalize_views": bool(normalize_views),
             **meta_lists,
         }
-        return cls.from_arrays(np.stack(begin), np.stack(end), np.asarray(durations), labels, meta)
+        db = cls.from_arrays(np.stack(begin), np.stack(end), np.asarray(durations), labels, meta)
+        db.frames = frames
+        return db
 
     # ----------------------------------------------------------------- access
     def __len__(self) -> int:
@@ -254,34 +270,75 @@ class SubtaskDatabase:
                     f"{where} was built with views {self.meta['views']}, not {list(views)}"
                 )
 
+    def calibrated_options(self) -> dict[str, Any]:
+        """``alpha``, ``min_len``, ``max_len`` chosen by the stored calibration (``rdd.calibrate``)."""
+        cal = self.meta.get("calibration")
+        if not cal or not isinstance(cal.get("chosen"), dict):
+            where = self.directory or "this database"
+            raise DatabaseError(f"{where} has no calibration (run `python -m rdd calibrate --db DIR`, "
+                                "or pass alpha/min_len/max_len)")
+        chosen = cal["chosen"]
+        return {"alpha": float(chosen["alpha"]), "min_len": int(chosen["min_len"]),
+                "max_len": None if chosen["max_len"] is None else int(chosen["max_len"])}
+
+    def episode_segments(self, episode: str) -> list[Segment]:
+        """The stored segmentation of ``episode``: its entries' ``[start, end)`` in order."""
+        segs = sorted((s, e) for n, s, e in zip(self.episodes, self.starts, self.ends, strict=True)
+                      if n == episode)
+        if not segs:
+            raise KeyError(f"no entries of episode {episode!r} in the database")
+        return segs
+
     # ----------------------------------------------------------------- persistence
-    def save(self, directory: str | Path) -> Path:
-        """Write the database to ``directory`` (created if needed); return the directory."""
-        out = Path(directory)
-        out.mkdir(parents=True, exist_ok=True)
-        stale = out / MANIFEST
-        if stale.exists():
-            stale.unlink()  # the old manifest must not vouch for half-replaced files
-        for name, arr in zip(_ARRAYS, (self.begin, self.end, self.durations), strict=True):
-            _atomic_write(out / name, lambda f, a=arr: np.save(f, a, allow_pickle=False))
-        entries = {
-            "labels": self.labels, "episodes": self.episodes, "tasks": self.tasks,
-            "starts": self.starts, "ends": self.ends,
-        }
-        _atomic_write(out / _ENTRIES, lambda f: f.write(json.dumps(entries).encode()))
-        manifest = {
+    def _manifest(self, out: Path) -> dict[str, Any]:
+        files = [*_ARRAYS, _ENTRIES] + ([_FRAMES] if self.frames else [])
+        return {
             "format_version": FORMAT_VERSION,
             "encoder": self.meta.get("encoder"),
             "weights_id": self.meta.get("weights_id"),
             "views": self.meta.get("views"),
+            "normalize_views": bool(self.meta.get("normalize_views", True)),
             "frame_dim": self.frame_dim,
             "count": len(self),
-            "extra": {k: v for k, v in self.meta.items() if k not in ("encoder", "weights_id", "views")},
-            "checksums": {name: _sha256(out / name) for name in (*_ARRAYS, _ENTRIES)},
+            "frames_episodes": sorted(self.frames),
+            "calibration": self.meta.get("calibration"),
+            "extra": {k: v for k, v in self.meta.items()
+                      if k not in ("encoder", "weights_id", "views", "normalize_views", "calibration")},
+            "checksums": {name: _sha256(out / name) for name in files},
         }
-        _atomic_write(out / MANIFEST, lambda f: f.write(json.dumps(manifest, indent=2).encode()))
+
+    def save(self, directory: str | Path, overwrite: bool = False) -> Path:
+        """Write the database to ``directory`` in one piece; return the directory.
+
+        An existing ``directory`` is replaced only with ``overwrite=True`` (else
+        :class:`rdd.atomic.TargetExistsError`, also when a concurrent writer finished first).
+        """
+        out = Path(directory)
+        with atomic_dir(out, overwrite=overwrite) as tmp:
+            for name, arr in zip(_ARRAYS, (self.begin, self.end, self.durations), strict=True):
+                np.save(tmp / name, arr, allow_pickle=False)
+            entries = {
+                "labels": self.labels, "episodes": self.episodes, "tasks": self.tasks,
+                "starts": self.starts, "ends": self.ends,
+            }
+            (tmp / _ENTRIES).write_text(json.dumps(entries))
+            if self.frames:
+                names = sorted(self.frames)
+                np.savez(tmp / _FRAMES, **{f"f{i}": self.frames[n] for i, n in enumerate(names)})
+            (tmp / MANIFEST).write_text(json.dumps(self._manifest(tmp), indent=2))
         self.directory = out
         return out
+
+    def save_calibration(self, calibration: dict[str, Any]) -> Path:
+        """Record ``calibration`` in the saved database's manifest (one atomic rewrite of it)."""
+        if self.directory is None:
+            raise DatabaseError("save_calibration needs a saved database (call save() or load() first)")
+        mpath = self.directory / MANIFEST
+        manifest = json.loads(mpath.read_text())
+        manifest["calibration"] = calibration
+        write_json_atomic(mpath, manifest, dumps=lambda m: json.dumps(m, indent=2))
+        self.meta["calibration"] = calibration
+        return mpath
 
     @classmethod
     def load(
@@ -308,7 +365,8 @@ class SubtaskDatabase:
         for key in ("frame_dim", "count", "checksums", "encoder", "weights_id", "views"):
             if key not in manifest:
                 raise DatabaseError(f"{mpath}: field {key!r} is missing")
-        for name in (*_ARRAYS, _ENTRIES):
+        frame_names = manifest.get("frames_episodes") or []
+        for name in (*_ARRAYS, _ENTRIES, *([_FRAMES] if frame_names else [])):
             path = root / name
             if not path.is_file():
                 raise DatabaseError(f"database file {path} is missing")
@@ -332,9 +390,18 @@ class SubtaskDatabase:
         meta = {
             "encoder": manifest["encoder"], "weights_id": manifest["weights_id"],
             "views": manifest["views"], **manifest.get("extra", {}),
+            "normalize_views": bool(manifest.get("normalize_views", True)),
+            "calibration": manifest.get("calibration"),
             **{k: entries[k] for k in _PER_ENTRY},
         }
         db = cls.from_arrays(begin, end, durations, entries["labels"], meta)
+        if frame_names:
+            with np.load(root / _FRAMES, allow_pickle=False) as data:
+                db.frames = {n: np.asarray(data[f"f{i}"], dtype=np.float32) for i, n in enumerate(frame_names)}
+            for n, fv in db.frames.items():
+                if fv.ndim != 2 or fv.shape[1] != d:
+                    raise DatabaseError(f"{root / _FRAMES}: frames of {n!r} have shape {fv.shape}, "
+                                        f"expected (T, {d})")
         db.check_compatible(encoder, views, where=f"database {root}")
         if encoder is not None and encoder.dim and manifest["views"]:
             expected_dim = encoder.dim * len(manifest["views"])

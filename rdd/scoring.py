@@ -108,18 +108,18 @@ def uvd_milestones_per_end(
 ) -> np.ndarray:
     """m(e) for every frame e in ``end_frames``: one backward UVD step from e (0 when UVD finds none).
 
-    Returns a (T,) array (NaN for frames not asked for). Computed once per end frame and shared by
-    every interval ending there, instead of once per interval.
+    Returns a (T,) array (NaN for frames not asked for). All end frames share one Gram matrix and
+    one kernel product (``uvd_previous_milestones_all``), equal to one UVD step per end frame.
     """
-    from rdd.decomposers.uvd import uvd_previous_milestone  # lazy: keeps scoring import-light
+    from rdd.decomposers.uvd import uvd_previous_milestones_all  # lazy: keeps scoring import-light
 
     fv = np.asarray(frame_vectors)
     out = np.full(fv.shape[0], np.nan)
-    for e in np.unique(np.asarray(end_frames, dtype=np.int64)):
-        m = uvd_previous_milestone(
-            fv, int(e), min_interval=min_interval, gamma=gamma,
-            normalize_curve=normalize_curve, window_length=window_length,
-        )
+    found = uvd_previous_milestones_all(
+        fv, end_frames, min_interval=min_interval, gamma=gamma,
+        normalize_curve=normalize_curve, window_length=window_length,
+    )
+    for e, m in found.items():
         out[e] = 0.0 if m is None else float(m)
     return out
 

@@ -1,8 +1,18 @@
 """RDD (Yan et al., NeurIPS 2025): the partition whose intervals best match database sub-tasks.
 
-Every candidate interval ``[start, end)`` with ``min_len <= end - start <= max_len`` is retrieved in
-one batch, scored ``J(I) = weight(I) * sim(I, I_nn)`` (Eq. 3.4, or Eq. 3.5 in the OOD mode), and the
-exact maximum-sum partition is found by dynamic programming over the dense score array.
+Every candidate interval ``[start, end)`` with ``min_len <= end - start <= max_len`` is scored
+``J(I) = weight(I) * sim(I, I_nn)`` and the exact maximum-sum partition is found by dynamic
+programming over the dense score array.
+
+* Default mode (Eq. 3.4): ``I_nn`` is the entry nearest to ``concat(f[start], f[end-1])``; all
+  candidates are retrieved in one batch. ``beta != 0`` adds ``beta * G(I)`` as the official code does.
+* OOD mode (Eq. 3.5): ``I_nn`` is the entry whose *end* frame is nearest to ``f[end-1]`` (the
+  official ``embed_mode='ood'``), so retrieval is one query per end frame; the score is
+  ``-delta(f[end-1], E_nn) + beta * G(I)``. The novelty Delta is defined on the default-mode
+  partition, so it is computed there (``meta["novelty_partition"] == "default"``).
+
+``G(I) = -|start - UVD(end-1)| / weight(I)`` with one backward UVD step per end frame, computed for
+all end frames at once (``rdd.decomposers.uvd.uvd_previous_milestones_all``).
 """
 
 from __future__ import annotations
@@ -22,10 +32,28 @@ from rdd.index import NearestIndex, load_index
 from rdd.solver import candidate_intervals, max_sum_partition_dense
 
 MODES = ("default", "ood")
+PAPER_DEFAULTS: dict[str, Any] = {"alpha": 1.0, "min_len": 2, "max_len": None}
+DEFAULT_BETA = {"default": 0.0, "ood": 0.1}
+
+
+class _Unset:
+    """Marks an option the caller left out (so a calibrated value may fill it)."""
+
+    def __repr__(self) -> str:
+        return "<unset>"
+
+
+UNSET: Any = _Unset()
 
 
 class RDDDecomposer(Decomposer):
-    """Retrieval-based demonstration decomposer over a :class:`SubtaskDatabase`."""
+    """Retrieval-based demonstration decomposer over a :class:`SubtaskDatabase`.
+
+    ``alpha``, ``min_len`` and ``max_len`` left out take the paper's values (1, 2, unbounded), or
+    with ``use_calibration=True`` the values the database's calibration chose (``rdd.calibrate``);
+    an explicitly given value always wins. ``beta`` left out is 0 in the default mode and 0.1 in
+    the OOD mode. Frame vectors follow the database's ``normalize_views`` setting.
+    """
 
     name = "rdd"
 
@@ -33,21 +61,30 @@ class RDDDecomposer(Decomposer):
         self,
         database: SubtaskDatabase,
         encoder: Encoder | None = None,
-        alpha: float = 1.0,
-        beta: float = 0.1,
+        alpha: float = UNSET,
+        beta: float | None = None,
         mode: str = "default",
-        min_len: int = 2,
-        max_len: int | None = None,
+        min_len: int = UNSET,
+        max_len: int | None = UNSET,
         backend: str | NearestIndex = "exact",
         views: Sequence[str] = DEFAULT_VIEWS,
         backend_options: Mapping[str, Any] | None = None,
         uvd_options: Mapping[str, Any] | None = None,
         cache=None,
+        use_calibration: bool = False,
     ) -> None:
         if not isinstance(database, SubtaskDatabase):
             raise TypeError(f"database must be a SubtaskDatabase, got {type(database).__name__}")
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        given = {k: v for k, v in (("alpha", alpha), ("min_len", min_len), ("max_len", max_len))
+                 if v is not UNSET}
+        base = database.calibrated_options() if use_calibration else PAPER_DEFAULTS
+        opts = {**PAPER_DEFAULTS, **base, **given}
+        self.option_source = {k: ("given" if k in given else "calibration" if use_calibration else "paper")
+                              for k in PAPER_DEFAULTS}
+        alpha, min_len, max_len = opts["alpha"], opts["min_len"], opts["max_len"]
+        beta = DEFAULT_BETA[mode] if beta is None else beta
         if alpha < 0 or beta < 0:
             raise ValueError(f"alpha and beta must be >= 0, got alpha={alpha}, beta={beta}")
         if int(min_len) != min_len or min_len < 1:
@@ -59,6 +96,7 @@ class RDDDecomposer(Decomposer):
         self.alpha, self.beta, self.mode = float(alpha), float(beta), mode
         self.min_len, self.max_len = int(min_len), None if max_len is None else int(max_len)
         self.views = tuple(views)
+        self.normalize_views = bool(database.meta.get("normalize_views", True))
         self.uvd_options = dict(uvd_options or {})
         self.cache = cache
         if encoder is not None:
@@ -81,13 +119,13 @@ class RDDDecomposer(Decomposer):
         if self.encoder is None:
             raise ValueError("RDDDecomposer.decompose(episode) needs an encoder; "
                              "pass encoder= or call decompose_embeddings(frame_vectors)")
-        fv = episode_frame_vectors(episode, self.encoder, views=self.views, cache=self.cache)
+        fv = episode_frame_vectors(episode, self.encoder, views=self.views, cache=self.cache,
+                                   normalize=self.normalize_views)
         result = self.decompose_embeddings(fv)
         result.meta["episode"] = episode.name
         return result
 
-    def decompose_embeddings(self, frame_vectors: np.ndarray) -> Decomposition:
-        """Decompose a demonstration given its (T, D) frame vectors (the database's layout)."""
+    def _check(self, frame_vectors: np.ndarray) -> np.ndarray:
         fv = np.asarray(frame_vectors, dtype=np.float32)
         if fv.ndim != 2:
             raise ValueError(f"frame_vectors must be a (T, D) array, got shape {fv.shape}")
@@ -96,40 +134,76 @@ class RDDDecomposer(Decomposer):
                 f"frame vectors are {fv.shape[1]}-d but the database holds {self.database.frame_dim}-d "
                 "frame vectors (same encoder and views are required)"
             )
-        t = fv.shape[0]
-        max_len = self.max_len if self.max_len is None else min(self.max_len, t)
-        starts, ends, valid = candidate_intervals(t, self.min_len, max_len)
-        s, e = starts[valid], ends[valid]
-        ids, dist = self.index.search_intervals(fv, s, e)  # all candidates in one batch
-        if self.mode == "default":
-            sim = scoring.default_similarity(
-                dist, scoring.durations(s, e), self.database.durations[ids], self.alpha
-            )
-        else:
-            end_dist = scoring.angular_distance(fv[e - 1], self.database.end[ids])
-            milestones = scoring.uvd_milestones_per_end(fv, np.unique(e - 1), **self.uvd_options)
-            sim = scoring.ood_similarity(end_dist, s, e, milestones, self.beta)
-        j = scoring.interval_scores(sim, s, e)
+        return fv
+
+    def _candidates(self, t: int, min_len: int, max_len: int | None):
+        max_len = max_len if max_len is None else min(max_len, t)
+        starts, ends, valid = candidate_intervals(t, min_len, max_len)
+        return starts, valid, starts[valid], ends[valid], max_len
+
+    def _milestones(self, fv: np.ndarray, e: np.ndarray) -> np.ndarray:
+        return scoring.uvd_milestones_per_end(fv, np.unique(e - 1), **self.uvd_options)
+
+    def _solve(self, j: np.ndarray, starts: np.ndarray, valid: np.ndarray, min_len: int,
+               max_len: int | None) -> tuple[float, list, np.ndarray]:
+        """Best partition of the candidate scores ``j``; also each segment's position in ``j``."""
         dense = np.full(starts.shape, -np.inf)
         dense[valid] = j
-        total, segments = max_sum_partition_dense(dense, self.min_len, max_len)
+        total, segments = max_sum_partition_dense(dense, min_len, max_len)
         # Map each chosen segment back to its candidate: row end-1, column length-min_len.
         rows = np.array([b - 1 for _, b in segments])
-        cols = np.array([b - a - self.min_len for a, b in segments])
+        cols = np.array([b - a - min_len for a, b in segments])
         flat = np.flatnonzero(valid.ravel())
         pos = np.searchsorted(flat, rows * starts.shape[1] + cols)
-        seg_scores = [float(x) for x in j[pos]]
+        return total, segments, pos
+
+    def decompose_embeddings(self, frame_vectors: np.ndarray) -> Decomposition:
+        """Decompose a demonstration given its (T, D) frame vectors (the database's layout)."""
+        fv = self._check(frame_vectors)
+        starts, valid, s, e, max_len = self._candidates(fv.shape[0], self.min_len, self.max_len)
+        ids, dist = self.index.search_intervals(fv, s, e)  # all candidates in one batch
+        sim = scoring.default_similarity(
+            dist, scoring.durations(s, e), self.database.durations[ids], self.alpha
+        )
+        meta: dict[str, Any] = {"mode": self.mode, "backend": self.index.name,
+                                "num_candidates": int(s.size), "alpha": self.alpha,
+                                "beta": self.beta, "min_len": self.min_len, "max_len": self.max_len,
+                                "option_source": dict(self.option_source)}
+        if self.mode == "ood" or self.beta == 0:
+            # Standard RDD (Eq. 3.4): the partition whose mean score is the novelty Delta.
+            j = scoring.interval_scores(sim, s, e)
+            total, segments, pos = self._solve(j, starts, valid, self.min_len, max_len)
+            delta = scoring.novelty(j[pos])
+            if self.mode == "default":
+                return self._result(total, segments, pos, j, ids, dist, sim, delta, meta)
+            meta["default_segments"] = [list(x) for x in segments]
+            prior = scoring.uvd_prior(s, e, self._milestones(fv, e))
+            end_ids, end_dist = self.index.search_ends(fv)  # nearest end frame, per end frame
+            ids, dist = end_ids[e - 1], end_dist[e - 1]
+            sim = -dist + self.beta * prior
+        else:
+            # The official code adds beta * G(I) in the default mode too when beta != 0.
+            sim = sim + self.beta * scoring.uvd_prior(s, e, self._milestones(fv, e))
+            delta = None
+        j = scoring.interval_scores(sim, s, e)
+        total, segments, pos = self._solve(j, starts, valid, self.min_len, max_len)
+        if delta is None:
+            delta = scoring.novelty(j[pos])
+        return self._result(total, segments, pos, j, ids, dist, sim, delta, meta)
+
+    def _result(self, total, segments, pos, j, ids, dist, sim, delta, meta) -> Decomposition:
         neighbours = []
         for p in pos:
             entry = self.database.entry(int(ids[p]))
             entry["distance"] = float(dist[p])
             entry["similarity"] = float(sim[p])
             neighbours.append(entry)
+        meta.update(objective=total, novelty_partition="default" if self.beta == 0 or self.mode == "ood"
+                    else "default+beta*G")
         return Decomposition(
             segments=segments,
-            scores=seg_scores,
+            scores=[float(x) for x in j[pos]],
             neighbours=neighbours,
-            novelty=scoring.novelty(seg_scores),
-            meta={"objective": total, "mode": self.mode, "backend": self.index.name,
-                  "num_candidates": int(s.size)},
+            novelty=delta,
+            meta=meta,
         )

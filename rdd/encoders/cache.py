@@ -71,6 +71,17 @@ class EmbeddingCache:
         digest = hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
         return self.root / fields["encoder"] / digest[:2] / f"{digest}.npz"
 
+    def get(self, episode: Episode, encoder: Encoder, view: str) -> np.ndarray | None:
+        """Cached embeddings of ``episode``'s ``view`` (T, dim), or None when absent or unreadable."""
+        fields = self.key_fields(episode, encoder, view)
+        path = self.path_for(fields)
+        if not path.exists():
+            return None
+        emb = self._read(path, (episode.num_frames, int(encoder.dim)))
+        if emb is not None:
+            self.stats.hits += 1
+        return emb
+
     def get_or_compute(self, episode: Episode, encoder: Encoder, view: str) -> np.ndarray:
         """Cached float32 embeddings (T, dim) of ``episode``'s ``view``; encode and store on a miss."""
         fields = self.key_fields(episode, encoder, view)

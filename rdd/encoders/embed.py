@@ -19,14 +19,18 @@ def l2_normalize(x: np.ndarray, eps: float = 1e-12) -> np.ndarray:
     return x / np.maximum(norm, eps)
 
 
-def concat_views(per_view: Sequence[np.ndarray]) -> np.ndarray:
-    """Frame vectors from per-view embeddings (each (T, D_v)): normalise each view, then concatenate."""
+def concat_views(per_view: Sequence[np.ndarray], normalize: bool = True) -> np.ndarray:
+    """Frame vectors from per-view embeddings (each (T, D_v)): normalise each view, then concatenate.
+
+    ``normalize=False`` concatenates the raw embeddings (the official RDD code's layout).
+    """
     if not per_view:
         raise ValueError("at least one view is needed to build frame vectors")
     lengths = {int(np.asarray(v).shape[0]) for v in per_view}
     if len(lengths) != 1:
         raise ValueError(f"views have different numbers of frames: {sorted(lengths)}")
-    return np.concatenate([l2_normalize(v) for v in per_view], axis=1).astype(np.float32)
+    parts = [l2_normalize(v) if normalize else np.asarray(v, dtype=np.float32) for v in per_view]
+    return np.concatenate(parts, axis=1).astype(np.float32)
 
 
 def episode_frame_vectors(
@@ -34,16 +38,25 @@ def episode_frame_vectors(
     encoder: Encoder,
     views: Sequence[str] = DEFAULT_VIEWS,
     cache=None,
+    normalize: bool = True,
+    frames: Sequence[int] | np.ndarray | None = None,
 ) -> np.ndarray:
     """(T, sum of view dims) frame vectors of ``episode`` under ``encoder``.
 
     ``cache``: an embedding cache (see ``rdd.encoders.cache``) or None for no caching.
+    ``frames``: only these frame indices (rows in that order); the encoder then sees only those
+    images unless the cache already holds the whole episode. Subsets are not cached.
     """
+    idx = None if frames is None else np.asarray(frames, dtype=np.int64)
+    if idx is not None and idx.size and (idx.min() < 0 or idx.max() >= episode.num_frames):
+        raise ValueError(f"episode {episode.name!r}: frame indices must be in [0, {episode.num_frames})")
     per_view = []
     for view in views:
-        if cache is not None:
-            emb = cache.get_or_compute(episode, encoder, view)
+        if idx is None:
+            emb = (cache.get_or_compute(episode, encoder, view) if cache is not None
+                   else encoder.encode(episode.frames(view)))
         else:
-            emb = encoder.encode(episode.frames(view))
+            full = cache.get(episode, encoder, view) if cache is not None else None
+            emb = full[idx] if full is not None else encoder.encode(episode.frames(view, idx))
         per_view.append(emb)
-    return concat_views(per_view)
+    return concat_views(per_view, normalize=normalize)

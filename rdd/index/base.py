@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rdd.scoring import check_intervals
+from rdd.scoring import check_intervals, cosine_to_angular
 
 
 def _as_pair(begin: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -43,6 +43,12 @@ class NearestIndex(ABC):
         """
         b, e = _as_pair(begin, end)
         self.num_entries, self.frame_dim = b.shape
+        end_norm = np.sqrt(np.einsum("ij,ij->i", e.astype(np.float64), e.astype(np.float64)))
+        if (end_norm == 0).any():
+            raise ValueError(f"{self.name} index: a database end-frame vector is zero "
+                             "(angular distance undefined)")
+        # For search_ends: a reference to the end vectors (no copy) and their inverse norms.
+        self._raw_end, self._end_inv_norm = e, (1.0 / end_norm).astype(np.float32)
         self._fit(b, e, None if cache_dir is None else Path(cache_dir), key)
         return self
 
@@ -92,6 +98,50 @@ class NearestIndex(ABC):
             q = np.concatenate([fv[s[sl]], fv[e[sl] - 1]], axis=1)
             ids[sl], dists[sl] = self.search(q)
         return ids, dists
+
+    def search_ends(self, frame_vectors: np.ndarray, memory_mb: int = 256) -> tuple[np.ndarray, np.ndarray]:
+        """Entry whose end-frame vector is nearest to each frame (paper Eq. 3.5's OOD retrieval).
+
+        Returns ids (T,) and angular distances (T,) over the end-frame vectors alone. Exact for
+        every backend: T queries only, one chunked (T, D) x (D, N) product.
+        """
+        if self.num_entries == 0:
+            raise RuntimeError(f"{self.name} index: call fit() before search_ends()")
+        fv = np.asarray(frame_vectors, dtype=np.float32)
+        if fv.ndim != 2 or fv.shape[1] != self.frame_dim:
+            raise ValueError(f"{self.name} index: frame vectors must be (T, {self.frame_dim}), got {fv.shape}")
+        norm = np.linalg.norm(fv.astype(np.float64), axis=1)
+        if (norm == 0).any() or not np.isfinite(norm).all():
+            raise ValueError(f"{self.name} index: a frame vector is zero, NaN or inf")
+        q = (fv / norm[:, None]).astype(np.float32)
+        best = np.full(q.shape[0], -np.inf, dtype=np.float32)
+        nc = max(1, (memory_mb << 20) // (4 * max(q.shape[0], 1)))
+        rows = np.arange(q.shape[0])
+        # float32 products err by up to ~1e-5 in cosine; near an exact match that is a visible
+        # angular distance (sqrt), so every entry within `tol` of a row's float32 best is rescored
+        # in float64 and the best of those wins (lowest id among exact ties).
+        tol = 1e-4
+        cand_rows, cand_cols = [], []
+        for c in range(0, self.num_entries, nc):
+            dots = q @ self._raw_end[c : c + nc].T
+            dots *= self._end_inv_norm[c : c + nc]
+            best = np.maximum(best, dots.max(axis=1))
+            r, k = np.nonzero(dots >= (best - tol)[:, None])
+            cand_rows.append(r)
+            cand_cols.append(k + c)
+        r, k = np.concatenate(cand_rows), np.concatenate(cand_cols)
+        qd = fv[r].astype(np.float64) / norm[r, None]
+        ed = self._raw_end[k].astype(np.float64)
+        cos = np.einsum("ij,ij->i", qd, ed) / np.linalg.norm(ed, axis=1)
+        order = np.lexsort((k, -cos, r))  # per row: highest cosine first, then lowest id
+        first = np.ones(order.size, dtype=bool)
+        first[1:] = r[order][1:] != r[order][:-1]
+        pick = order[first]
+        best_id = np.zeros(q.shape[0], dtype=np.int64)
+        best_cos = np.full(q.shape[0], -1.0)
+        best_id[r[pick]], best_cos[r[pick]] = k[pick], cos[pick]
+        assert (np.bincount(r[pick], minlength=rows.size) == 1).all()
+        return best_id, cosine_to_angular(best_cos)
 
 
 def interval_matrix(begin: np.ndarray, end: np.ndarray, normalize: bool = True) -> np.ndarray:

@@ -67,20 +67,22 @@ def brute_force_objective(fv, db, mode, alpha, beta, min_len, max_len, uvd_kwarg
     """Max over all partitions of the summed J, every score computed directly per interval."""
     x = np.concatenate([db.begin, db.end], 1).astype(np.float64)
     x /= np.linalg.norm(x, axis=1, keepdims=True)
+    ends = db.end.astype(np.float64) / np.linalg.norm(db.end.astype(np.float64), axis=1, keepdims=True)
     t = fv.shape[0]
 
     def j(s, e):
-        q = np.concatenate([fv[s], fv[e - 1]]).astype(np.float64)
-        cos = x @ (q / np.linalg.norm(q))
-        nn = int(cos.argmax())
+        m = uvd_previous_milestone(fv, e - 1, **uvd_kwargs)  # rerun per interval, as officially
+        g = -abs(s - (m or 0)) / (e - s)
         if mode == "default":
+            q = np.concatenate([fv[s], fv[e - 1]]).astype(np.float64)
+            cos = x @ (q / np.linalg.norm(q))
+            nn = int(cos.argmax())
             dist = np.sqrt(max(2 - 2 * cos[nn], 0.0))
-            sim = -(dist + alpha * abs(1 - (e - 1 - s) / max(db.durations[nn], 1)))
-        else:
-            a, b = fv[e - 1].astype(np.float64), db.end[nn].astype(np.float64)
-            c = a @ b / np.linalg.norm(a) / np.linalg.norm(b)
-            m = uvd_previous_milestone(fv, e - 1, **uvd_kwargs)  # rerun per interval, as officially
-            sim = -np.sqrt(max(2 - 2 * c, 0.0)) + beta * (-abs(s - (m or 0)) / (e - s))
+            sim = -(dist + alpha * abs(1 - (e - 1 - s) / max(db.durations[nn], 1))) + beta * g
+        else:  # Eq. 3.5: the entry whose end frame is nearest to the interval's end frame
+            a = fv[e - 1].astype(np.float64)
+            c = (ends @ (a / np.linalg.norm(a))).max()
+            sim = -np.sqrt(max(2 - 2 * c, 0.0)) + beta * g
         return (e - s) * sim
 
     best = -np.inf
@@ -99,12 +101,82 @@ def test_objective_equals_brute_force(world_db, mode):
     fv, _ = world.demo("task_1", rng, length_range=(4, 6))
     fv = fv[:14]
     uvd = {"min_interval": 2}
-    dec = RDDDecomposer(db, alpha=0.7, beta=0.5, mode=mode, min_len=2, max_len=6, uvd_options=uvd)
-    result = dec.decompose_embeddings(fv)
-    ref = brute_force_objective(fv, db, mode, 0.7, 0.5, 2, 6, uvd)
-    assert result.meta["objective"] == pytest.approx(ref, abs=1e-4)
-    assert sum(result.scores) == pytest.approx(ref, abs=1e-4)
-    assert all(2 <= e - s <= 6 for s, e in result.segments)
+    for beta in (0.0, 0.5):
+        dec = RDDDecomposer(db, alpha=0.7, beta=beta, mode=mode, min_len=2, max_len=6, uvd_options=uvd)
+        result = dec.decompose_embeddings(fv)
+        ref = brute_force_objective(fv, db, mode, 0.7, beta, 2, 6, uvd)
+        assert result.meta["objective"] == pytest.approx(ref, abs=1e-4)
+        assert sum(result.scores) == pytest.approx(ref, abs=1e-4)
+        assert all(2 <= e - s <= 6 for s, e in result.segments)
+
+
+def ood_brute_force_dp(fv, end_vectors, min_len, max_len):
+    """Best partition under J(I) = -min_k delta(f[e-1], E_k) * |I|, each score from scratch."""
+    e_unit = end_vectors.astype(np.float64) / np.linalg.norm(end_vectors.astype(np.float64), axis=1,
+                                                             keepdims=True)
+
+    def j(s, e):
+        f = fv[e - 1].astype(np.float64)
+        d = np.sqrt(np.maximum(2 - 2 * (e_unit @ (f / np.linalg.norm(f))), 0.0))
+        return -float(d.min()) * (e - s)
+
+    t = fv.shape[0]
+    best = [0.0] + [-np.inf] * t
+    for e in range(1, t + 1):
+        for length in range(min_len, min(max_len, e) + 1):
+            best[e] = max(best[e], best[e - length] + j(e - length, e))
+    return best[t]
+
+
+def _adversarial_ood_case(rng, kind):
+    d = 6
+    if kind == "random":
+        ends = rng.normal(size=(40, d))
+        begins = rng.normal(size=(40, d))
+        fv = rng.normal(size=(17, d))
+    elif kind == "concat_decoy":
+        # Entries whose begin frame matches every query frame but whose end frames are far:
+        # the nearest entry on concat(begin, end) is not the nearest on the end frame alone.
+        fv = rng.normal(size=(15, d))
+        decoy_b = np.repeat(fv.mean(0, keepdims=True), 30, 0) + 0.01 * rng.normal(size=(30, d))
+        decoy_e = -fv[rng.integers(0, 15, 30)] + 0.3 * rng.normal(size=(30, d))
+        true_b = rng.normal(size=(15, d)) * 5
+        true_e = fv + 0.2 * rng.normal(size=(15, d))
+        begins, ends = np.concatenate([decoy_b, true_b]), np.concatenate([decoy_e, true_e])
+    else:  # "ties": repeated end vectors and repeated frames
+        base = rng.normal(size=(3, d))
+        ends = base[rng.integers(0, 3, 25)]
+        begins = rng.normal(size=(25, d))
+        fv = base[rng.integers(0, 3, 16)]
+    return fv.astype(np.float32), begins.astype(np.float32), ends.astype(np.float32)
+
+
+@pytest.mark.parametrize("kind", ["random", "concat_decoy", "ties"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_ood_beta0_equals_brute_force_end_frame_dp(kind, seed):
+    rng = np.random.default_rng(seed)
+    fv, begins, ends = _adversarial_ood_case(rng, kind)
+    db = SubtaskDatabase.from_arrays(begins, ends, rng.integers(1, 9, begins.shape[0]))
+    for min_len, max_len in ((2, 5), (1, 7), (3, None)):
+        dec = RDDDecomposer(db, mode="ood", beta=0.0, min_len=min_len, max_len=max_len)
+        result = dec.decompose_embeddings(fv)
+        ref = ood_brute_force_dp(fv, ends, min_len, max_len or fv.shape[0])
+        assert result.meta["objective"] == pytest.approx(ref, abs=1e-4)
+        # each segment's neighbour is an entry whose end frame is nearest to the segment's end frame
+        for (_, e), n in zip(result.segments, result.neighbours, strict=True):
+            f = fv[e - 1].astype(np.float64)
+            cos = ends.astype(np.float64) @ f / np.linalg.norm(ends, axis=1) / np.linalg.norm(f)
+            assert cos[n["entry"]] == pytest.approx(cos.max(), abs=1e-5)
+        assert result.meta["novelty_partition"] == "default"
+
+
+def test_ood_novelty_is_the_default_partitions_mean_score(world_db):
+    world, db, _ = world_db
+    fv, _ = world.demo("task_2", np.random.default_rng(3))
+    ood = RDDDecomposer(db, mode="ood").decompose_embeddings(fv)
+    default = RDDDecomposer(db, mode="default").decompose_embeddings(fv)
+    assert ood.novelty == pytest.approx(default.novelty)
+    assert ood.meta["default_segments"] == [list(x) for x in default.segments]
 
 
 class PixelMeanEncoder(Encoder):

@@ -10,7 +10,12 @@ from scipy.signal import argrelextrema
 from sklearn.metrics.pairwise import pairwise_kernels
 
 from rdd.data.episode import Episode
-from rdd.decomposers.uvd import UVDDecomposer, uvd_milestones, uvd_previous_milestone
+from rdd.decomposers.uvd import (
+    UVDDecomposer,
+    uvd_milestones,
+    uvd_previous_milestone,
+    uvd_previous_milestones_all,
+)
 from rdd.encoders.base import Encoder
 
 
@@ -131,3 +136,62 @@ def test_decomposer_segments_partition_episode():
     assert out.keyframes == out.meta["milestones"]
     with pytest.raises(ValueError, match="encoder"):
         UVDDecomposer().decompose(ep)
+
+
+def _per_goal(emb, **kw):
+    return {g: uvd_previous_milestone(emb, g, **kw) for g in range(emb.shape[0])}
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    length=st.integers(1, 140),
+    dim=st.integers(1, 6),
+    min_interval=st.integers(0, 25),
+    normalize=st.booleans(),
+    gamma=st.sampled_from([0.08, 0.01, 0.3]),
+    f32=st.booleans(),
+    kind=st.sampled_from(["piecewise", "noise", "static", "repeats"]),
+)
+def test_all_goals_at_once_equal_one_step_per_goal(seed, length, dim, min_interval, normalize, gamma,
+                                                   f32, kind):
+    rng = np.random.default_rng(seed)
+    if kind == "piecewise":
+        emb = piecewise_trajectory(rng, sorted(rng.choice(np.arange(1, max(length - 1, 2)), 2)), length, dim) \
+            if length > 3 else rng.normal(size=(length, dim))
+    elif kind == "noise":
+        emb = rng.normal(size=(length, dim))
+    elif kind == "static":  # exact repeats at the start and end: flat curves, ties everywhere
+        emb = rng.normal(size=(length, dim))
+        emb[: length // 3] = emb[0]
+        emb[-(length // 4) :] = emb[-1]
+    else:  # few distinct frames, many exact repeats
+        emb = rng.normal(size=(3, dim))[rng.integers(0, 3, size=length)]
+    emb = emb.astype(np.float32 if f32 else np.float64)
+    kw = dict(min_interval=min_interval, gamma=gamma, normalize_curve=normalize)
+    assert uvd_previous_milestones_all(emb, np.arange(length), **kw) == _per_goal(emb, **kw)
+
+
+def test_all_goals_equal_per_goal_on_real_rlbench_embeddings():
+    from pathlib import Path
+
+    from rdd.data.rlbench import load_episodes
+    from rdd.encoders import load_encoder
+    from rdd.encoders.embed import episode_frame_vectors
+
+    root = Path("/work/shared/data/rlbench/open_drawer/all_variations/episodes")
+    if not root.is_dir():
+        pytest.skip("shared RLBench episodes are not on this machine")
+    ep = load_episodes(root / "episode0")[0]
+    fv = episode_frame_vectors(ep, load_encoder("pixels"), views=("front", "wrist"))
+    assert uvd_previous_milestones_all(fv, np.arange(fv.shape[0])) == _per_goal(fv)
+
+
+def test_all_goals_windowed_and_bad_goals():
+    rng = np.random.default_rng(1)
+    emb = piecewise_trajectory(rng, [30, 70], 100)
+    kw = dict(min_interval=5, window_length=40)
+    assert uvd_previous_milestones_all(emb, np.arange(100), **kw) == _per_goal(emb, **kw)
+    with pytest.raises(ValueError, match="goal frames"):
+        uvd_previous_milestones_all(emb, [100])
+    assert uvd_previous_milestones_all(emb, []) == {}
