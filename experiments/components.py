@@ -170,11 +170,18 @@ def embedding_cache(root: Path):
 
 def build_database(episodes, segments, instructions, encoder, views, cache, out: Path) -> None:
     """Build the sub-task database of expert-segmented episodes and save it into ``out``."""
+    from rdd.calibrate import calibrate, sample_episodes
     from rdd.database import SubtaskDatabase
 
     for ep, ins in zip(episodes, instructions, strict=True):
         ep.instructions = list(ins)  # entries keep the labeller's instruction
-    db = SubtaskDatabase.build(episodes, segments, encoder, views=tuple(views), cache=cache)
+    names = [ep.name for ep in episodes]
+    # Calibration (decomposer=rdd_calibrated) keeps whole-episode vectors of a sample of episodes.
+    keep = sample_episodes(names) if len(set(names)) == len(names) > 1 else []
+    db = SubtaskDatabase.build(episodes, segments, encoder, views=tuple(views), cache=cache,
+                               keep_frames=keep)
+    if keep:
+        db.meta["calibration"] = calibrate(db)
     db.save(out / "database")
 
 

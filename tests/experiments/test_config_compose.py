@@ -42,7 +42,9 @@ def providers():
     begin, end = rng.standard_normal((8, dim)), rng.standard_normal((8, dim))
     db = SubtaskDatabase.from_arrays(begin, end, rng.integers(3, 9, 8), [f"step {i}" for i in range(8)],
                                      meta={"encoder": enc.name, "weights_id": enc.weights_id,
-                                           "views": ["front", "wrist"]})
+                                           "views": ["front", "wrist"],
+                                           "calibration": {"chosen": {"alpha": 0.5, "min_len": 2,
+                                                                      "max_len": None}}})
     def index():
         from rdd.index import load_index
 

@@ -254,3 +254,54 @@ def test_outputs_respect_the_umask(data, tmp_path):
     finally:
         os.umask(old)
     assert (tmp_path / "u.json").stat().st_mode & 0o777 == 0o640
+
+
+def test_build_db_calibrates_and_decompose_uses_it(data, tmp_path, capsys):
+    cache = ["--cache-dir", tmp_path / "cache", "--encoder-option", "size=4"]
+    assert run("build-db", "--format", "native", "--data", data, "--exclude", "ep0", "--encoder",
+               "pixels", *cache, "--out", tmp_path / "db") == 0
+    assert "calibrated on 3 held-out episodes" in capsys.readouterr().out
+    manifest = json.loads((tmp_path / "db" / "manifest.json").read_text())
+    cal = manifest["calibration"]
+    assert cal["episodes"] == ["ep1", "ep2", "ep3"] and manifest["frames_episodes"] == ["ep1", "ep2", "ep3"]
+    assert cal["score"] == max(r["miou"] for r in cal["results"])
+    # entries carry the episodes' goal as their instruction; decompose returns them
+    assert run("decompose", "--format", "native", "--data", data, "--include", "ep0",
+               "--decomposer", "rdd", "--db", tmp_path / "db", *cache, "--out", tmp_path / "a.json") == 0
+    out = json.loads((tmp_path / "a.json").read_text())
+    assert out["config"]["alpha"] == cal["chosen"]["alpha"]
+    assert out["config"]["option_source"]["alpha"] == "calibration"
+    assert set(out["episodes"][0]["instructions"]) == {"move the colours"}
+    assert run("decompose", "--format", "native", "--data", data, "--include", "ep0", "--alpha", "7",
+               "--decomposer", "rdd", "--db", tmp_path / "db", *cache, "--out", tmp_path / "b.json") == 0
+    cfg = json.loads((tmp_path / "b.json").read_text())["config"]
+    assert cfg["alpha"] == 7 and cfg["option_source"]["alpha"] == "given"
+    assert cfg["min_len"] == cal["chosen"]["min_len"]
+    # rerun with another grid: the manifest records it
+    assert run("calibrate", "--db", tmp_path / "db", "--alpha", "0.5,3", "--min-len", "2",
+               "--max-len", "none") == 0
+    cal2 = json.loads((tmp_path / "db" / "manifest.json").read_text())["calibration"]
+    assert cal2["grid"] == {"alpha": [0.5, 3.0], "min_len": [2], "max_len": [None]}
+    assert cal2["chosen"]["alpha"] in (0.5, 3.0, 1.0)
+    capsys.readouterr()
+    assert run("calibrate", "--db", tmp_path / "db", "--alpha", ",") == 2
+    err = capsys.readouterr().err
+    assert "--alpha" in err and "empty" in err
+    assert json.loads((tmp_path / "db" / "manifest.json").read_text())["calibration"] == cal2
+
+
+def test_build_db_no_calibrate_and_one_episode(data, tmp_path, capsys):
+    common = ["--format", "native", "--data", data, "--encoder", "pixels", "--encoder-option", "size=4",
+              "--no-cache"]
+    assert run("build-db", *common, "--no-calibrate", "--out", tmp_path / "db") == 0
+    manifest = json.loads((tmp_path / "db" / "manifest.json").read_text())
+    assert manifest["calibration"] is None and manifest["frames_episodes"] == []
+    assert not (tmp_path / "db" / "frames.npz").exists()
+    capsys.readouterr()
+    assert run("calibrate", "--db", tmp_path / "db") == 2
+    err = capsys.readouterr().err
+    assert "--db" in err and "--no-calibrate" in err
+    assert json.loads((tmp_path / "db" / "manifest.json").read_text()) == manifest
+    assert run("build-db", *common, "--include", "ep1", "--out", tmp_path / "one") == 0
+    assert "calibration skipped" in capsys.readouterr().err
+    assert json.loads((tmp_path / "one" / "manifest.json").read_text())["calibration"] is None

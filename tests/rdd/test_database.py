@@ -171,3 +171,67 @@ def test_from_arrays_errors():
         SubtaskDatabase.from_arrays(np.full((3, 4), np.nan), b, [1, 1, 1])
     with pytest.raises(ValueError, match="at least one entry"):
         SubtaskDatabase.from_arrays(np.ones((0, 4)), np.ones((0, 4)), [])
+
+
+class CountingEncoder(ProjectionEncoder):
+    """Counts the images it is asked to encode."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.images = 0
+
+    def encode(self, images: np.ndarray) -> np.ndarray:
+        self.images += images.shape[0]
+        return super().encode(images)
+
+
+def test_build_encodes_only_boundary_frames_unless_kept(episodes):
+    enc = CountingEncoder()
+    db = SubtaskDatabase.build(episodes, None, enc)
+    # ep0 [0,5),[5,12): frames 0,4,5,11; ep1 [0,3),[3,4),[4,9): frames 0,2,3,4,8; two views each
+    assert enc.images == 2 * (4 + 5)
+    full = SubtaskDatabase.build(episodes, None, ProjectionEncoder())
+    np.testing.assert_allclose(db.begin, full.begin, atol=1e-6)
+    np.testing.assert_allclose(db.end, full.end, atol=1e-6)
+    assert db.frames == {}
+    enc = CountingEncoder()
+    kept = SubtaskDatabase.build(episodes, None, enc, keep_frames=["ep1"])
+    assert enc.images == 2 * (4 + 9)
+    np.testing.assert_allclose(kept.frames["ep1"], episode_frame_vectors(episodes[1], ProjectionEncoder()))
+    with pytest.raises(ValueError, match="not being built.*'nope'"):
+        SubtaskDatabase.build(episodes, None, enc, keep_frames=["nope"])
+
+
+def test_raw_views_and_goal_instructions(episodes):
+    enc = ProjectionEncoder()
+    raw = SubtaskDatabase.build(episodes, None, enc, normalize_views=False)
+    f0 = enc.encode(episodes[0].frames("front", [0]))[0]
+    np.testing.assert_allclose(raw.begin[0, :6], f0, rtol=1e-5)
+    assert raw.meta["normalize_views"] is False
+    for ep, goal in zip(episodes, ("open the drawer", "close it"), strict=True):
+        ep.instructions, ep.goal = None, goal
+    db = SubtaskDatabase.build(episodes, None, enc)
+    assert db.labels == ["open the drawer"] * 2 + ["close it"] * 3
+
+
+def test_save_refuses_to_replace_unless_asked_and_keeps_frames(tmp_path, episodes):
+    from rdd.atomic import TargetExistsError
+
+    enc = ProjectionEncoder()
+    db = SubtaskDatabase.build(episodes, None, enc, keep_frames=["ep0"], normalize_views=False)
+    db.meta["calibration"] = {"chosen": {"alpha": 0.25, "min_len": 3, "max_len": 9}, "score": 0.9}
+    db.save(tmp_path / "db")
+    other = SubtaskDatabase.build(episodes[:1], None, enc)
+    with pytest.raises(TargetExistsError, match="already exists"):
+        other.save(tmp_path / "db")
+    back = SubtaskDatabase.load(tmp_path / "db")
+    assert len(back) == 5 and set(back.frames) == {"ep0"}
+    np.testing.assert_array_equal(back.frames["ep0"], db.frames["ep0"])
+    assert back.meta["normalize_views"] is False
+    assert back.calibrated_options() == {"alpha": 0.25, "min_len": 3, "max_len": 9}
+    assert back.episode_segments("ep1") == [(0, 3), (3, 4), (4, 9)]
+    other.save(tmp_path / "db", overwrite=True)
+    assert len(SubtaskDatabase.load(tmp_path / "db")) == 2
+    with pytest.raises(DatabaseError, match="no calibration"):
+        SubtaskDatabase.load(tmp_path / "db").calibrated_options()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["db"]  # no temporary left behind
