@@ -143,6 +143,11 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--backends", default="exact,exact-dense,faiss-flat",
                    help="of exact, exact-dense, faiss-flat, faiss-hnsw, faiss-ivf, annoy-batch")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--ood", action=argparse.BooleanOptionalAction, default=True,
+                   help="time the OOD mode against the default mode (exact backend)")
+    p.add_argument("--scale", default="", help="database sizes for the scale section, e.g. 12700,100000")
+    p.add_argument("--scale-backends", default="exact,faiss-hnsw,faiss-ivf",
+                   help="backends timed in the scale section (recall@1 against exact)")
     p.add_argument("--out", type=Path, default=Path("outputs/bench"))
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -214,6 +219,11 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"  speedup of {name} over the naive loop: {r['speedup_vs_naive']:.0f}x wall, "
                   f"{r['cpu_speedup_vs_naive']:.0f}x CPU")
 
+    if args.ood:
+        results["ood_vs_default"] = ood_vs_default(db, fv, args)
+    if args.scale:
+        results["scale"] = scale_section(world, fv, args)
+
     if args.scaling:
         rows = []
         dec = RDDDecomposer(db, alpha=args.alpha, min_len=args.min_len, max_len=args.max_len, backend="exact")
@@ -233,6 +243,74 @@ def main(argv: list[str] | None = None) -> dict:
     _atomic_text(args.out / "results.json", json.dumps(results, indent=2, default=float))
     print(f"wrote {args.out}/results.json")
     return results
+
+
+def ood_vs_default(db: SubtaskDatabase, fv: np.ndarray, args) -> dict:
+    """Wall time of the OOD mode (with its default-mode novelty) against the default mode."""
+    out = {}
+    for mode in ("default", "ood"):
+        dec = RDDDecomposer(db, alpha=args.alpha, mode=mode, min_len=args.min_len, max_len=args.max_len)
+        dec.decompose_embeddings(fv[:50])  # warm-up
+        t, _ = timed(lambda d=dec: d.decompose_embeddings(fv), max(args.repeat, 1))
+        out[f"{mode}_s"] = t
+    out["ratio"] = out["ood_s"] / out["default_s"]
+    print(f"OOD vs default (exact, T={fv.shape[0]}, {len(db)} entries): ood {out['ood_s']:.3f} s, "
+          f"default {out['default_s']:.3f} s: {out['ratio']:.2f}x")
+    return out
+
+
+SCALE_SPECS = {
+    "exact": ("exact", {}),
+    "exact-dense": ("exact", {"prune": False}),
+    "faiss-flat": ("faiss", {"kind": "flat"}),
+    "faiss-hnsw": ("faiss", {"kind": "hnsw"}),
+    "faiss-ivf": ("faiss", {"kind": "ivf"}),
+    "annoy": ("annoy", {}),
+}
+
+
+def scale_section(world: World, fv: np.ndarray, args) -> list[dict]:
+    """Decompose time per backend at each database size, and recall@1 of each backend's neighbours.
+
+    recall@1: share of the candidate intervals whose neighbour is the exact one (or ties with it
+    to 1e-6 in distance); also whether the decomposition equals the exact backend's.
+    """
+    rows = []
+    for n in [int(x) for x in args.scale.split(",") if x]:
+        db = world.database(n)
+        t = fv.shape[0]
+        max_len = min(args.max_len, t)
+        ends = np.arange(1, t + 1)[:, None]
+        lengths = np.arange(args.min_len, max_len + 1)[None, :]
+        starts = ends - lengths
+        ok = starts >= 0
+        s, e = starts[ok], np.broadcast_to(ends, starts.shape)[ok]
+        exact_ids = exact_dist = exact_segs = None
+        for name in [b for b in args.scale_backends.split(",") if b]:
+            backend, options = SCALE_SPECS[name]
+            try:
+                t_fit, dec = timed(lambda b=backend, o=options, d=db: RDDDecomposer(
+                    d, alpha=args.alpha, min_len=args.min_len, max_len=args.max_len, backend=b,
+                    backend_options=o))
+            except ImportError as exc:
+                print(f"  N={n} {name}: skipped ({exc})")
+                continue
+            t_run, res = timed(lambda d=dec: d.decompose_embeddings(fv))
+            ids, dist = dec.index.search_intervals(fv, s, e)
+            row = {"entries": n, "backend": name, "build_s": t_fit, "decompose_s": t_run}
+            if name == "exact":
+                exact_ids, exact_dist, exact_segs = ids, dist, res.segments
+            if exact_ids is not None:
+                hit = (ids == exact_ids) | (np.abs(dist - exact_dist) <= 1e-6)
+                row["recall_at_1"] = float(hit.mean())
+                row["same_partition_as_exact"] = res.segments == exact_segs
+            rows.append(row)
+            del dec
+            extra = "" if "recall_at_1" not in row else (
+                f", recall@1 {row['recall_at_1']:.4f}, same partition as exact: {row['same_partition_as_exact']}")
+            print(f"  N={n:>8} {name:>11}: decompose {t_run:7.2f} s (index build {t_fit:6.1f} s){extra}")
+        del db
+    return rows
 
 
 def _write_scaling(rows: list[dict], out: Path, max_len: int, entries: int) -> None:

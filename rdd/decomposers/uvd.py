@@ -158,7 +158,7 @@ def uvd_previous_milestones_all(
         if normalize_curve:
             # A positive scale keeps every maximum; a zero first distance makes the curve NaN
             # (no maximum) in the per-goal form, left to the reference below.
-            scale_zero = dist[:, 0] == 0
+            scale_zero = np.linalg.norm(emb[0][None, :] - emb[g], axis=1) == 0  # as the per-goal form
         else:
             scale_zero = np.zeros(g.size, dtype=bool)
         peak = np.nanmax(np.abs(curves), axis=1, initial=0.0)

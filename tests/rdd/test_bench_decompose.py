@@ -18,13 +18,18 @@ def test_benchmark_tiny_run(tmp_path):
     out = tmp_path / "bench"
     res = bench.main(["--frames", "60", "--max-len", "20", "--entries", "300", "--embed-dim", "32",
                       "--backends", "exact,exact-dense,faiss-flat", "--repeat", "1", "--naive-limit", "10",
-                      "--scaling", "40,60", "--out", str(out)])
+                      "--scaling", "40,60", "--scale", "400", "--scale-backends", "exact,faiss-flat,faiss-hnsw",
+                      "--out", str(out)])
     b = res["backends"]
     # pruned exact, dense exact and faiss flat are all exact searches: the same optimum
     assert b["exact"]["objective"] == pytest.approx(b["exact-dense"]["objective"], abs=1e-4)
     assert b["exact"]["objective"] == pytest.approx(b["faiss-flat"]["objective"], abs=1e-3)
     assert res["naive_annoy_loop"]["extrapolated"] and res["naive_annoy_loop"]["queries"] > 0
     assert {r["T"] for r in res["scaling"]} == {40, 60}
+    assert res["ood_vs_default"]["ratio"] > 0
+    scale = {r["backend"]: r for r in res["scale"]}
+    assert scale["faiss-flat"]["recall_at_1"] == pytest.approx(1.0)  # an exact search too
+    assert 0 <= scale["faiss-hnsw"]["recall_at_1"] <= 1
     for name in ("results.json", "scaling.csv", "scaling.md", "scaling.png"):
         assert (out / name).is_file(), name
     assert json.loads((out / "results.json").read_text())["candidates"] == res["candidates"]
