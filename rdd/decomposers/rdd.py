@@ -40,7 +40,7 @@ class _Unset:
     """Marks an option the caller left out (so a calibrated value may fill it)."""
 
     def __repr__(self) -> str:
-        return "<unset>"
+        return "calibrated-or-paper"
 
 
 UNSET: Any = _Unset()
