@@ -68,3 +68,35 @@ def test_threads_follow_the_launchers_allotment(monkeypatch, n_jobs, env, cpus, 
         monkeypatch.setenv(var, value)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cpus)), raising=False)
     assert _default_threads(n_jobs) == expected
+
+
+def test_slurm_command_submits_one_array_task_per_job(tmp_path: Path):
+    """The README's Slurm command, against stand-ins for sbatch/srun that record the batch script."""
+    pytest.importorskip("hydra_plugins.hydra_submitit_launcher",
+                        reason=f"needs the cluster extra: {INSTALL_LINE}")
+    import os
+    import subprocess
+
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    script = tmp_path / "batch.sh"
+    for name, body in (("sbatch", f'cp "$1" "{script}"\n'), ("srun", "")):
+        (bin_dir / name).write_text(f"#!/bin/sh\n{body}echo '{name}: a stand-in, no cluster here' >&2\nexit 1\n")
+        (bin_dir / name).chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}", "PYTHONPATH": str(ROOT),
+           "WANDB_MODE": "disabled"}
+    sweep = tmp_path / "sweep"
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "run.py"), "-m", "hydra/launcher=slurm", "experiment=table_main_full",
+         "decomposer=rdd,uniform", "seed=0,1,2", "hydra.launcher.partition=gpu", "hydra.launcher.mem_gb=32",
+         "hydra.launcher.gpus_per_node=1", "hydra.launcher.array_parallelism=4",
+         f"paths.cache_dir={tmp_path / 'cache'}", f"hydra.sweep.dir={sweep}"],
+        cwd=tmp_path, env=env, text=True, capture_output=True, timeout=300)
+    assert proc.returncode != 0 and "sbatch: a stand-in" in proc.stderr  # submission reached sbatch
+    lines = set(script.read_text().splitlines())
+    expected = {"#SBATCH --array=0-5%4",  # 6 jobs, at most 4 running at once
+                "#SBATCH --partition=gpu", "#SBATCH --mem=32GB", "#SBATCH --gpus-per-node=1",
+                "#SBATCH --cpus-per-task=4", "#SBATCH --time=240"}  # the config's defaults
+    assert expected <= lines, sorted(lines)
+    assert any(f"{sys.executable} -u -m submitit.core._submit {sweep}/.submitit/" in line for line in lines)
+    assert not (tmp_path / "cache").exists()  # nothing ran here
