@@ -113,7 +113,9 @@ class FileLock:
         try:
             write_json_atomic(self.path, owner, overwrite=False)
         except TargetExistsError:
-            return False
+            # Over NFS a retransmitted link() can report EEXIST for the link it just made itself.
+            if (_read_owner(self.path) or {}).get("token") != token:
+                return False
         self.token = token
         self._stop.clear()
         self._beat = threading.Thread(target=self._heartbeat, name=f"lock-heartbeat {self.label}",

@@ -128,3 +128,22 @@ def test_take_over_never_removes_a_fresh_lock(tmp_path: Path):
     assert waiter.try_acquire()
     waiter.release()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_link_that_reports_exists_but_made_our_lock_still_acquires(tmp_path: Path, monkeypatch):
+    import experiments.locks as locks
+    from rdd.atomic import TargetExistsError
+
+    real = locks.write_json_atomic
+
+    def lost_reply(path, obj, **kw):  # the server made the link, the client saw EEXIST on a retry
+        real(path, obj, **kw)
+        raise TargetExistsError(f"{path} already exists")
+
+    monkeypatch.setattr(locks, "write_json_atomic", lost_reply)
+    lock = FileLock(tmp_path / ".k.lock.json", heartbeat_s=0.05, stale_after_s=0.2)
+    assert lock.try_acquire()
+    other = FileLock(tmp_path / ".k.lock.json", heartbeat_s=0.05, stale_after_s=0.2)
+    assert not other.try_acquire()  # someone else's lock is still refused
+    lock.release()
+    assert not (tmp_path / ".k.lock.json").exists()
