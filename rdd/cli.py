@@ -19,7 +19,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from rdd.atomic import TargetExistsError
 from rdd.atomic import write_json_atomic as _write_json
 from rdd.data.episode import Episode
 from rdd.data.load import FORMATS
@@ -187,16 +186,6 @@ def embed_all(episodes: Sequence[Episode], encoder, views: Sequence[str], cache)
         episode_frame_vectors(ep, encoder, views=views, cache=cache)
 
 
-def save_database(db, out: Path, force: bool) -> Path:
-    """``db.save`` refusing to replace an existing database unless ``force``."""
-    if "overwrite" in inspect.signature(db.save).parameters:
-        return db.save(out, overwrite=force)
-    # SubtaskDatabase.save without its own overwrite guard: check here (racy between writers).
-    if out.exists() and not force:
-        raise TargetExistsError(f"{out} already exists (refusing to replace it)")
-    return db.save(out)
-
-
 # ----------------------------------------------------------------------------- build-db
 def cmd_build_db(args: argparse.Namespace) -> int:
     """Segment episodes (their sub-task annotations or the expert rule), build and calibrate the database."""
@@ -259,7 +248,7 @@ def cmd_build_db(args: argparse.Namespace) -> int:
                                                progress=lambda xs: progress(xs, "calibration"))
         except CalibrationError as exc:
             raise CLIError(str(exc)) from exc
-    out = save_database(db, out, args.force)
+    out = db.save(out, overwrite=args.force)
     print(f"built database {out}: {len(db)} sub-tasks from {len(episodes)} episodes "
           f"(encoder {encoder.name}, views {list(views)}, segments {source})")
     if db.meta.get("calibration"):
