@@ -26,9 +26,13 @@ def main(cfg: DictConfig) -> float | None:
 
     try:
         summary = run(cfg)
-    except Exception:
-        log.exception("run failed (output directory: %s)", _output_dir())
-        raise
+    except Exception as exc:
+        # One line on the terminal; the traceback goes to the run's log file only (DEBUG).
+        out = _output_dir()
+        log.debug("traceback of the failure", exc_info=True)
+        log.error("run failed: %s: %s", type(exc).__name__, exc)
+        log.error("details: %s/run.log", out)
+        raise SystemExit(1) from None
     log.info("output directory: %s", summary.get("output_dir"))
     return summary.get("main_metric")
 

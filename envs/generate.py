@@ -112,7 +112,8 @@ def generate(tasks, split: str, episodes: int, out: str | Path, workers: int = 1
         raise ValueError(f"--max-failures must be >= 0, got {max_failures}")
     seeds_range = SPLIT_SEEDS[split]
     used: dict[str, list[int]] = {}
-    bar = tqdm(total=episodes * len(tasks), desc=f"{split} demos", disable=not progress, file=sys.stderr)
+    bar = tqdm(total=episodes * len(tasks), desc=f"{split} demos", disable=not progress, file=sys.stderr,
+               leave=False)
     pool = ProcessPoolExecutor(max_workers=workers) if workers > 1 else None
     try:
         for task in tasks:

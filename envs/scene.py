@@ -14,10 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
+from envs.quiet import native_output_silenced
+
 try:
-    import pybullet as pb
-    import pybullet_data
-    from pybullet_utils import bullet_client
+    with native_output_silenced():  # pybullet prints its build-time banner on import
+        import pybullet as pb
+        import pybullet_data
+        from pybullet_utils import bullet_client
 except ImportError as exc:  # pragma: no cover - depends on the install
     raise ImportError(
         "the envs package needs pybullet: pip install 'rdd-harness[sim]'"
@@ -130,11 +133,12 @@ class Scene:
     def __init__(self, camera: CameraSpec | None = None, render: bool = True):
         self.camera = camera or CameraSpec()
         self.render_enabled = render
-        self.p = bullet_client.BulletClient(connection_mode=pb.DIRECT)
+        with native_output_silenced():  # each client prints "argv[0]="
+            self.p = bullet_client.BulletClient(connection_mode=pb.DIRECT)
+            self.ik = bullet_client.BulletClient(connection_mode=pb.DIRECT)
         self.p.setAdditionalSearchPath(pybullet_data.getDataPath())
         # A second client holding only the arm: inverse kinematics is seeded and checked there
         # without disturbing the simulated robot.
-        self.ik = bullet_client.BulletClient(connection_mode=pb.DIRECT)
         self.ik_robot = self.ik.loadURDF(_lite_panda_urdf(), basePosition=ROBOT_BASE, useFixedBase=True)
         self._proj = self.p.computeProjectionMatrixFOV(
             self.camera.fov, self.camera.width / self.camera.height, self.camera.near, self.camera.far

@@ -13,6 +13,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from experiments.logs import progress_enabled
 from experiments.stages import read_json, write_json_atomic
 from rdd.segments import Segment
 
@@ -58,7 +59,7 @@ def episodes_for(env_cfg: DictConfig, task: str, split: str, count: int, root: P
 
     opts = _env_options(env_cfg)
     used = generate([task], split, int(count), root, workers=1,
-                    image_size=int(opts.get("image_size", 128)), render=True, progress=False)
+                    image_size=int(opts.get("image_size", 128)), render=True, progress=progress_enabled())
     return [episode_dir(root, split, task, seed) for seed in used[task]]
 
 
@@ -261,7 +262,7 @@ def pretrain_planner(planner_cfg: DictConfig, episodes, segments, instructions,
 
     cfg = planner_config(planner_cfg)
     examples = _examples(cfg, episodes, segments, instructions, cfg.pretrain)
-    path = pretrain_base(cfg, examples, out, extra_corpus=list(corpus), progress=False)
+    path = pretrain_base(cfg, examples, out, extra_corpus=list(corpus), progress=progress_enabled())
     write_json_atomic(out / PLANNER_FILE, {"base": _relative(path, out)})
 
 
@@ -272,7 +273,7 @@ def finetune_planner(planner_cfg: DictConfig, base_dir: Path, episodes, segments
 
     cfg = planner_config(planner_cfg)
     examples = _examples(cfg, episodes, segments, instructions, cfg.finetune)
-    path = finetune_lora(cfg, _resolve(base_dir), examples, out, seed=seed, progress=False)
+    path = finetune_lora(cfg, _resolve(base_dir), examples, out, seed=seed, progress=progress_enabled())
     write_json_atomic(out / PLANNER_FILE, {"adapter": _relative(path, out)})
 
 

@@ -15,6 +15,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from experiments import components as comp
+from experiments.logs import progress
 from experiments.results import EpisodeResult
 
 log = logging.getLogger(__name__)
@@ -59,9 +60,9 @@ def evaluate(env_cfg: DictConfig, task: str, seeds: Sequence[int], planner: Any,
     env = comp.make_env(env_cfg, task)
     try:
         out = []
-        for seed in seeds:
+        for seed in progress(seeds, desc=f"evaluate {task}", unit="ep"):
             res = run_episode(env, seed, planner, policy, max_steps, view)
-            log.info("%s seed %d: %s in %d step(s)", task, seed,
+            log.debug("%s seed %d: %s in %d step(s)", task, seed,
                      "success" if res.success else f"failure ({res.failure})", res.steps)
             out.append(res)
         return out

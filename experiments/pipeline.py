@@ -20,11 +20,11 @@ from omegaconf import DictConfig, OmegaConf
 
 from experiments import components as comp
 from experiments.instantiate import (
-    check_component,
     instantiate_component,
     target_callable,
     wanted_providers,
 )
+from experiments.logs import progress, quiet_libraries, show_progress, stage_lines
 from experiments.results import (
     RESULTS_FILE,
     RESULTS_FORMAT,
@@ -33,11 +33,10 @@ from experiments.results import (
     per_task_success,
 )
 from experiments.stages import StageCache, read_json, spec_key, stage_code_key, write_json_atomic
+from experiments.validate import validate_config
 
 log = logging.getLogger(__name__)
 
-COMPONENT_GROUPS = ("env", "encoder", "index", "decomposer", "labeler", "train_labeler", "policy",
-                    "planner")
 
 
 class Unavailable(RuntimeError):
@@ -335,11 +334,12 @@ class Run:
             episodes, expert, _, expert_key = self.expert_labels(task, "val", m)
             spec = {"demos": expert_key, **parts}
 
-            def build(tmp: Path, episodes=episodes, expert=expert) -> None:
+            def build(tmp: Path, episodes=episodes, expert=expert, task=task) -> None:
                 decomposer = instantiate_component(self.cfg.decomposer, "decomposer", self.providers())
                 labeler = self.labeler()
                 out = []
-                for ep, gt in zip(episodes, expert, strict=True):
+                for ep, gt in progress(list(zip(episodes, expert, strict=True)),
+                                       desc=f"decompose {task}", unit="demo"):
                     t0 = time.perf_counter()
                     dec = decomposer.decompose(ep)
                     seconds = time.perf_counter() - t0
@@ -439,21 +439,20 @@ def finetunes(cfg: DictConfig) -> bool:
 
 
 def preflight(run: Run) -> None:
-    """Cheap checks before any long work: component options, and the runtime objects needed."""
-    for group in COMPONENT_GROUPS:
-        node = run.cfg.get(group)
-        if node is not None and node.get("_target_"):
-            check_component(node, group)
+    """Cheap checks before any long work: the runtime objects needed (keys and types: validate_config)."""
     if set(run.decomposer_wants()) & {"encoder", "database"}:
         run.encoder()  # a missing checkpoint fails here, at once
 
 
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Run one configuration end to end; writes results.json and returns its summary."""
+    validate_config(cfg)  # unknown or mistyped keys fail here, before anything is written
     out_dir, choices, overrides, multirun, n_jobs = _hydra_info()
     if out_dir is None:
         out_dir = Path(OmegaConf.select(cfg, "output_dir", default=None) or "outputs/run")
     out_dir.mkdir(parents=True, exist_ok=True)
+    quiet_libraries()
+    show_progress(not multirun or n_jobs == 1)  # parallel jobs' bars would interleave
     threads = _set_threads(cfg, n_jobs)
     mode = str(OmegaConf.select(cfg, "mode")).split(".")[-1]
     resolved = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
@@ -504,6 +503,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         results["timings"] = {k: {"seconds": round(v.seconds, 3), "cached": v.cached}
                               for k, v in cache.timings.items()}
         results["wall_seconds"] = round(time.perf_counter() - t_start, 3)
+        for line in stage_lines(cache.timings):
+            log.info(line)
         write_json_atomic(out_dir / RESULTS_FILE, results)
         tracker.log(_metrics(results))
         tracker.finish()

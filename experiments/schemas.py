@@ -110,6 +110,8 @@ class RunConfig:
     planner_eval: PlannerEvalConfig = field(default_factory=PlannerEvalConfig)
     wandb: WandbConfig = field(default_factory=WandbConfig)
     paths: PathsConfig = field(default_factory=PathsConfig)
+    # Where results.json goes when the pipeline runs outside Hydra (tests); Hydra runs use hydra.run.dir.
+    output_dir: str | None = None
     # Component groups: ``_target_`` nodes filled from conf/<group>/<option>.yaml.
     env: Any = None
     encoder: Any = None
@@ -121,6 +123,11 @@ class RunConfig:
     train_labeler: Any = None
     policy: Any = None
     planner: Any = None
+
+
+# The groups whose options are `_target_` nodes (experiments.validate checks them against their target).
+COMPONENT_GROUPS = ("env", "encoder", "index", "decomposer", "labeler", "train_labeler", "policy",
+                    "planner")
 
 
 def register_configs() -> None:

@@ -110,6 +110,8 @@ class StageTiming:
 
     seconds: float
     cached: bool
+    built: int = 0  # calls that built an entry
+    reused: int = 0  # calls that found it in the cache
 
 
 @dataclass
@@ -186,11 +188,10 @@ class StageCache:
         return False
 
     def _record(self, name: str, seconds: float, cached: bool) -> None:
-        prev = self.timings.get(name)
-        if prev is None:
-            self.timings[name] = StageTiming(seconds, cached)
-        else:
-            self.timings[name] = StageTiming(prev.seconds + seconds, prev.cached and cached)
+        prev = self.timings.get(name) or StageTiming(0.0, True)
+        self.timings[name] = StageTiming(prev.seconds + seconds, prev.cached and cached,
+                                         prev.built + (not cached), prev.reused + bool(cached))
+        log.debug("stage %s: %s in %.2f s", name, "reused" if cached else "built", seconds)
 
     @contextlib.contextmanager
     def timed(self, name: str) -> Iterator[dict[str, bool]]:

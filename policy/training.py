@@ -129,7 +129,7 @@ def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainCon
                 seen += len(idx)
             if seen:
                 history.append(total / seen)
-                log.info("policy epoch %d/%d loss %.4f", epoch + 1, epochs, history[-1])
+                log.debug("policy epoch %d/%d loss %.4f", epoch + 1, epochs, history[-1])
             if progress >= 1.0 and step < total_steps:
                 stopped_early = True
                 log.warning("policy training compressed into max_seconds: %d of %d steps", step, total_steps)

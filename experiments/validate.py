@@ -1,0 +1,204 @@
+"""Check a composed config before any stage runs: every key known, every value of the expected type.
+
+Hydra's typed schema (``experiments.schemas.RunConfig``) covers the run's own keys but accepts keys
+added with ``+`` and cannot see inside the component groups, whose options are ``_target_`` nodes.
+Here each key is checked against what consumes it: the schema's fields for the run's keys, and the
+signature of the ``_target_`` (its parameters and type hints; a dataclass-typed parameter given as a
+mapping is checked field by field) for component nodes. The first problem is reported with its
+dotted key, the expected type and the value given (``decomposer.alpha: expected float, got 'abc'``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import inspect
+import os
+import types
+import typing
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+HYDRA_KEYS = {"_target_", "_partial_", "_recursive_", "_convert_", "_args_"}
+
+
+class ConfigError(ValueError):
+    """A key of the composed config is unknown or its value has the wrong type."""
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, DictConfig | ListConfig):
+        value = OmegaConf.to_container(value, resolve=False)
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _type_name(hint: Any) -> str:
+    if hint is type(None):
+        return "null"
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        return " | ".join(_type_name(a) for a in typing.get_args(hint))
+    if origin is typing.Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(hint))
+    if origin is not None:
+        args = ", ".join(_type_name(a) for a in typing.get_args(hint))
+        return f"{getattr(origin, '__name__', str(origin))}[{args}]" if args else str(origin)
+    if isinstance(hint, type) and issubclass(hint, enum.Enum):
+        return "one of " + ", ".join(repr(m.name) for m in hint)
+    return getattr(hint, "__name__", str(hint))
+
+
+def _is_component(value: Any) -> bool:
+    return isinstance(value, DictConfig) and "_target_" in value
+
+
+def _conforms(value: Any, hint: Any) -> bool:
+    """Whether a config value can be given for a parameter annotated ``hint`` (unknown hints pass)."""
+    if hint is Any or hint is inspect.Parameter.empty or isinstance(hint, typing.TypeVar):
+        return True
+    if _is_component(value):
+        return True  # a nested component: checked on its own against its target
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_conforms(value, a) for a in args)
+    if origin is typing.Literal:
+        return value in args
+    if origin is typing.Annotated:
+        return _conforms(value, args[0])
+    if hint is type(None) or hint is None:
+        return value is None
+    if value is None:
+        return False
+    if origin in (list, tuple, Sequence, typing.Sequence, set, frozenset) or hint in (list, tuple):
+        if not isinstance(value, ListConfig | list | tuple):
+            return False
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            return len(value) == len(args) and all(_conforms(v, a) for v, a in zip(value, args, strict=True))
+        inner = args[0] if args else Any
+        return all(_conforms(v, inner) for v in value)
+    if origin in (dict, Mapping, typing.Mapping) or hint in (dict, Mapping):
+        return isinstance(value, DictConfig | dict)
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if hint is str:
+        return isinstance(value, str)
+    if hint in (Path, os.PathLike) or (isinstance(hint, type) and issubclass(hint, os.PathLike)):
+        return isinstance(value, str | Path)
+    if isinstance(hint, type) and issubclass(hint, enum.Enum):
+        return isinstance(value, hint) or value in hint.__members__ or value in {m.value for m in hint}
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+        return isinstance(value, DictConfig | dict)
+    return True  # a runtime object type (an index, an encoder...): whatever the target makes of it
+
+
+def _hints(fn: Callable[..., Any]) -> dict[str, Any]:
+    target = fn.__init__ if inspect.isclass(fn) else fn
+    try:
+        return typing.get_type_hints(target)
+    except Exception:  # a hint that does not resolve here (optional dependency): check keys only
+        return {}
+
+
+def _check_value(path: str, value: Any, hint: Any) -> None:
+    if not _conforms(value, hint):
+        raise ConfigError(f"{path}: expected {_type_name(hint)}, got {_fmt(value)}")
+    dc = _dataclass_in(hint)
+    if dc is not None and isinstance(value, DictConfig) and not _is_component(value):
+        check_fields(path, value, dc)
+    elif _is_component(value):
+        check_component_node(path, value)
+
+
+def _dataclass_in(hint: Any) -> type | None:
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+        return hint
+    for a in typing.get_args(hint):
+        if isinstance(a, type) and dataclasses.is_dataclass(a):
+            return a
+    return None
+
+
+def check_fields(path: str, node: DictConfig, schema: type) -> None:
+    """``node``'s keys must be fields of the dataclass ``schema``, each value of its field's type."""
+    fields = {f.name: f for f in dataclasses.fields(schema)}
+    hints = typing.get_type_hints(schema)
+    for key in node:
+        where = f"{path}.{key}" if path else str(key)
+        if key not in fields:
+            raise ConfigError(f"{where}: unknown key (given {_fmt(node[key])}); "
+                              f"{path or 'the config'} has {sorted(fields)}")
+        _check_value(where, _raw(node, key), hints.get(key, Any))
+
+
+def _raw(node: DictConfig, key: Any) -> Any:
+    """The value at ``key`` with interpolations resolved (a missing env var reads as null)."""
+    value = node._get_node(key)
+    if value is None or value._is_none():
+        return None
+    if isinstance(value, DictConfig | ListConfig) and not value._is_interpolation():
+        return value
+    try:
+        return node[key]
+    except Exception:
+        return None
+
+
+def check_component_node(path: str, node: DictConfig) -> None:
+    """A ``_target_`` node: its target imports, every key is a parameter of it, of the hinted type."""
+    from experiments.instantiate import target_callable
+
+    try:
+        fn = target_callable(node, path)
+    except (ImportError, ValueError) as exc:
+        raise ConfigError(f"{path}._target_: {exc}") from None
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return
+    open_kwargs = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+    hints = _hints(fn)
+    for key in node:
+        if key in HYDRA_KEYS:
+            continue
+        where = f"{path}.{key}"
+        if key not in params:
+            if open_kwargs:
+                continue
+            raise ConfigError(f"{where}: unknown option (given {_fmt(node[key])}) of {node._target_}; "
+                              f"it takes {sorted(p for p in params if p != 'self')}")
+        _check_value(where, _raw(node, key), hints.get(key, params[key].annotation))
+
+
+def validate_config(cfg: DictConfig, schema: type | None = None,
+                    components: Sequence[str] | None = None) -> None:
+    """Raise :class:`ConfigError` naming the first unknown or mistyped key of ``cfg``."""
+    from experiments.schemas import COMPONENT_GROUPS, RunConfig
+
+    schema = schema or RunConfig
+    components = COMPONENT_GROUPS if components is None else components
+    fields = {f.name for f in dataclasses.fields(schema)}
+    hints = typing.get_type_hints(schema)
+    for key in cfg:
+        if key == "hydra":
+            continue
+        if key not in fields:
+            raise ConfigError(f"{key}: unknown key (given {_fmt(_raw(cfg, key))}); the config's keys are "
+                              f"{sorted(fields)}")
+        value = _raw(cfg, key)
+        if key in components:
+            if _is_component(value):
+                check_component_node(str(key), value)
+            elif value is not None and not (isinstance(value, DictConfig) and len(value) == 0):
+                raise ConfigError(f"{key}: expected a `_target_` node (an option of conf/{key}/), "
+                                  f"got {_fmt(value)}")
+            continue
+        _check_value(str(key), value, hints.get(key, Any))
