@@ -207,7 +207,7 @@ def train_policy(policy_cfg: DictConfig, episodes, segments, instructions, label
     import dataclasses
 
     from experiments.instantiate import instantiate_component
-    from policy.keyframe import train_or_load
+    from policy.keyframe import train_policy as train
     from policy.text import shared_embedder
 
     cfg = instantiate_component(policy_cfg, "policy")
@@ -217,7 +217,7 @@ def train_policy(policy_cfg: DictConfig, episodes, segments, instructions, label
         got = [labeler.label(ep, tuple(s)) for s in ep.segments]
         if got != list(ep.instructions):
             raise RuntimeError(f"labeler is not deterministic on {ep.name}: {got} != {ep.instructions}")
-    policy = train_or_load(eps, labeler, out, cfg, embedder=shared_embedder(text_cache))
+    policy = train(eps, labeler, out, cfg, embedder=shared_embedder(text_cache))
     write_json_atomic(out / POLICY_FILE, {"checkpoint": _relative(policy.checkpoint, out)})
 
 

@@ -32,11 +32,11 @@ def run(cfg: PlannerConfig, cache_dir: Path, pretrain_episodes: int, demos: int,
     pre_test = make_episodes(PRETRAIN_TASKS, range(30_000, 30_000 + heldout // 2),
                              image_size=cfg.image_size)
     t0 = time.process_time()
-    base = pretrain_base(cfg, training_examples(pre, cfg.pretrain, cfg.view), cache_dir,
+    base = pretrain_base(cfg, training_examples(pre, cfg.pretrain, cfg.view), Path(cache_dir) / "base",
                          progress=progress)
     t1 = time.process_time()
-    adapter = finetune_lora(cfg, base, training_examples(demo, cfg.finetune, cfg.view), cache_dir,
-                            progress=progress)
+    adapter = finetune_lora(cfg, base, training_examples(demo, cfg.finetune, cfg.view),
+                            Path(cache_dir) / "lora", progress=progress)
     t2 = time.process_time()
     test_ex = training_examples(test, TrainSettings(), cfg.view)
     pre_ex = training_examples(pre_test, TrainSettings(), cfg.view)

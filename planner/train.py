@@ -11,9 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
-import tempfile
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -21,12 +18,11 @@ from pathlib import Path
 import torch
 
 from planner.augment import slot_swap
-from planner.config import PlannerConfig, TrainSettings, digest
+from planner.config import PlannerConfig, TrainSettings
 from planner.dataset import (
     PlannerCollator,
     PlannerExample,
     encode_example,
-    examples_fingerprint,
     examples_from_episode,
 )
 from planner.models import (
@@ -38,27 +34,23 @@ from planner.models import (
     train_tokenizer,
 )
 from planner.prompts import user_prompt
+from rdd.atomic import write_json_atomic
 
 CONFIG_FILE = "planner_config.json"
 LOG_FILE = "train_log.json"
 
 
-def _write_json(path: Path, obj) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=str))
-    os.replace(tmp, path)
+def _json_text(obj) -> str:
+    return json.dumps(obj, indent=2, sort_keys=True, default=str)
 
 
-def _publish(tmp_dir: Path, final: Path) -> Path:
-    """Move a finished output directory into place (another process may have won the race)."""
-    final.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        os.replace(tmp_dir, final)
-    except OSError:
-        if not (final / CONFIG_FILE).is_file():
-            raise
-        shutil.rmtree(tmp_dir, ignore_errors=True)
-    return final
+def _fresh_dir(out_dir: str | Path) -> Path:
+    """``out_dir`` created if missing; a folder that already holds a planner is never overwritten."""
+    out = Path(out_dir)
+    if (out / CONFIG_FILE).exists():
+        raise FileExistsError(f"{out} already holds a trained planner ({CONFIG_FILE}); pick another folder")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
 
 
 def _train(model, processor, examples: Sequence[PlannerExample], settings: TrainSettings,
@@ -143,33 +135,22 @@ def tokenizer_corpus(examples: Iterable[PlannerExample]) -> list[str]:
     return out
 
 
-def base_key(cfg: PlannerConfig, examples: Sequence[PlannerExample],
-             extra_corpus: Sequence[str] = ()) -> str:
-    """Cache key of a base: model config, pretraining settings, data, extra tokenizer corpus."""
-    return digest({"model": cfg.model_dict(), "data": examples_fingerprint(examples),
-                   "extra_corpus": list(extra_corpus)})
-
-
-def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], cache_dir: str | Path,
+def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_dir: str | Path,
                   *, extra_corpus: Sequence[str] = (), progress: bool = True) -> Path:
-    """The base planner directory: pretrained here (tiny kinds, cached) or the real checkpoint."""
+    """The base planner directory: pretrained here into ``out_dir`` (tiny kinds) or the real checkpoint."""
     if cfg.kind == "llava_next_8b":
         return resolve_checkpoint(cfg)  # pretrained elsewhere; we only finetune it
-    final = Path(cache_dir) / "base" / f"{cfg.kind}-{base_key(cfg, examples, extra_corpus)}"
-    if (final / CONFIG_FILE).is_file():
-        return final
     tokenizer = train_tokenizer(tokenizer_corpus(examples) + list(extra_corpus), cfg.vocab_size)
     processor = build_processor(cfg, tokenizer)
     torch.manual_seed(cfg.pretrain.seed)
     model = build_tiny_model(cfg, tokenizer)
+    out = _fresh_dir(out_dir)
     log = _train(model, processor, examples, cfg.pretrain, f"pretrain {cfg.kind}", progress)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=final.parent))
-    save_model(model, processor, tmp)
-    _write_json(tmp / LOG_FILE, log)
-    _write_json(tmp / CONFIG_FILE, {"stage": "base", "config": cfg.to_dict(),
-                                    "key": final.name})
-    return _publish(tmp, final)
+    save_model(model, processor, out)
+    write_json_atomic(out / LOG_FILE, log, dumps=_json_text)
+    write_json_atomic(out / CONFIG_FILE, {"stage": "base", "config": cfg.to_dict()},  # written last
+                      dumps=_json_text)
+    return out
 
 
 def _lora_config(cfg: PlannerConfig):
@@ -185,27 +166,16 @@ def _lora_config(cfg: PlannerConfig):
                       target_modules=target, modules_to_save=modules_to_save or None, bias="none")
 
 
-def _base_identity(base_dir: Path) -> str:
-    meta = base_dir / CONFIG_FILE
-    if meta.is_file():
-        return json.loads(meta.read_text())["key"]
-    return str(base_dir.resolve())  # the real checkpoint: identified by where it lives
-
-
 def finetune_lora(cfg: PlannerConfig, base_dir: str | Path, examples: Sequence[PlannerExample],
-                  cache_dir: str | Path, *, seed: int | None = None, progress: bool = True) -> Path:
-    """LoRA-finetune the base in ``base_dir`` on ``examples``; returns the adapter directory."""
+                  out_dir: str | Path, *, seed: int | None = None, progress: bool = True) -> Path:
+    """LoRA-finetune the base in ``base_dir`` on ``examples``; the adapter goes into ``out_dir``."""
     from peft import get_peft_model
 
     base_dir = Path(base_dir)
     settings = cfg.finetune
     if seed is not None:
         settings = TrainSettings(**{**settings.__dict__, "seed": int(seed)})
-    key = digest({"base": _base_identity(base_dir), "lora": cfg.lora.key_dict(),
-                  "finetune": settings.key_dict(), "data": examples_fingerprint(examples)})
-    final = Path(cache_dir) / "lora" / f"{cfg.kind}-{key}"
-    if (final / CONFIG_FILE).is_file():
-        return final
+    out = _fresh_dir(out_dir)
     device = "cuda" if torch.cuda.is_available() else None
     model, processor = load_model(base_dir, cfg, device=device)
     torch.manual_seed(settings.seed)
@@ -214,10 +184,9 @@ def finetune_lora(cfg: PlannerConfig, base_dir: str | Path, examples: Sequence[P
         model.gradient_checkpointing_enable()
         model.enable_input_require_grads()
     log = _train(model, processor, examples, settings, f"lora {cfg.kind}", progress)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=final.parent))
-    model.save_pretrained(tmp, safe_serialization=True)
-    _write_json(tmp / LOG_FILE, log)
-    _write_json(tmp / CONFIG_FILE, {"stage": "lora", "config": cfg.to_dict(), "key": final.name,
-                                    "base_dir": str(base_dir), "seed": settings.seed})
-    return _publish(tmp, final)
+    model.save_pretrained(out, safe_serialization=True)
+    write_json_atomic(out / LOG_FILE, log, dumps=_json_text)
+    write_json_atomic(out / CONFIG_FILE, {"stage": "lora", "config": cfg.to_dict(),  # written last
+                                          "base_dir": str(base_dir), "seed": settings.seed},
+                      dumps=_json_text)
+    return out

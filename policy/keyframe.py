@@ -2,8 +2,8 @@
 
 Training data: every expert segment of every training episode, labelled by the sub-task labeler;
 for each (sub-sampled) frame of a segment the target is that segment's keyframe (end-effector
-pose and gripper state at frame ``end - 1``). The trained network is cached on disk under a key
-made of the data's content hash and the configuration.
+pose and gripper state at frame ``end - 1``). ``train_policy`` trains and saves into the output
+folder it is given (the pipeline's stage cache decides when training is needed).
 """
 
 from __future__ import annotations
@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -27,11 +26,11 @@ from policy.text import InstructionEmbedder, shared_embedder
 from policy.training import (
     KeyframeDataset,
     TrainConfig,
-    cache_key,
     load_checkpoint,
     save_checkpoint,
     train_network,
 )
+from rdd.atomic import write_json_atomic
 from rdd.data.episode import Episode
 
 log = logging.getLogger(__name__)
@@ -111,33 +110,31 @@ def build_dataset(episodes: Iterable[Episode], labeler: Labeler, embedder: Instr
 
 @dataclass
 class PolicyTrainConfig:
-    """Everything that determines a trained keyframe policy (the cache key hashes all of it)."""
+    """Everything that determines a trained keyframe policy."""
 
     net: NetConfig = field(default_factory=NetConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     data: DatasetConfig = field(default_factory=DatasetConfig)
 
 
-def train_or_load(episodes: Sequence[Episode], labeler: Labeler, cache_dir: str | os.PathLike,
-                  cfg: PolicyTrainConfig | None = None,
-                  embedder: InstructionEmbedder | None = None) -> KeyframeBCPolicy:
-    """Train on ``episodes`` (or load the cached result for the same data and config)."""
+CHECKPOINT_FILE = "keyframe_policy.pt"
+
+
+def train_policy(episodes: Sequence[Episode], labeler: Labeler, out_dir: str | os.PathLike,
+                 cfg: PolicyTrainConfig | None = None,
+                 embedder: InstructionEmbedder | None = None) -> KeyframeBCPolicy:
+    """Train on ``episodes`` and save the network (``keyframe_policy.pt`` + ``.json``) into ``out_dir``."""
     cfg = cfg or PolicyTrainConfig()
-    cache_dir = Path(cache_dir)
-    embedder = embedder or shared_embedder(cache_dir / "text")
+    out_dir = Path(out_dir)
+    embedder = embedder or shared_embedder(None)
     data = build_dataset(episodes, labeler, embedder, cfg.data)
-    key = cache_key(data, cfg.net, cfg.train) + "_" + _short_hash(asdict(cfg.data))
-    path = cache_dir / f"keyframe_policy_{key}.pt"
-    if path.is_file():
-        log.info("loading cached keyframe policy %s", path)
-        net, meta = load_checkpoint(path)
-    else:
-        net, stats = train_network(data, cfg.net, cfg.train)
-        meta = {"stats": stats, "config": _jsonable(asdict(cfg)), "instructions": data.instr_texts,
-                "anchor_names": data.name_texts, "key": key}
-        save_checkpoint(path, net, meta)
-        _write_json(path.with_suffix(".json"), meta)
-        log.info("trained keyframe policy in %.1f s -> %s", stats["train_seconds"], path)
+    net, stats = train_network(data, cfg.net, cfg.train)
+    meta = {"stats": stats, "config": _jsonable(asdict(cfg)), "instructions": data.instr_texts,
+            "anchor_names": data.name_texts}
+    path = out_dir / CHECKPOINT_FILE
+    save_checkpoint(path, net, meta)
+    write_json_atomic(path.with_suffix(".json"), meta)
+    log.info("trained keyframe policy in %.1f s", stats["train_seconds"])
     return KeyframeBCPolicy(net, embedder, meta=meta, checkpoint=path)
 
 
@@ -155,7 +152,7 @@ class KeyframeBCPolicy(Policy):
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, text_cache_dir: str | os.PathLike | None = None) -> KeyframeBCPolicy:
-        """Load a policy saved by :func:`train_or_load`."""
+        """Load a policy saved by :func:`train_policy`."""
         net, meta = load_checkpoint(Path(path))
         return cls(net, shared_embedder(text_cache_dir), meta=meta, checkpoint=Path(path))
 
@@ -192,18 +189,6 @@ class KeyframeBCPolicy(Policy):
         )
 
 
-def _short_hash(obj: Any) -> str:
-    import hashlib
-
-    return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()[:8]
-
-
 def _jsonable(obj: Any) -> Any:
     return json.loads(json.dumps(obj, default=str))
 
-
-def _write_json(path: Path, obj: Any) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        json.dump(obj, f, indent=1)
-    os.replace(tmp, path)

@@ -1,4 +1,4 @@
-"""Training the keyframe network on flat arrays, cached on disk by config + data hash."""
+"""Training the keyframe network on flat arrays; checkpoints are written atomically."""
 
 from __future__ import annotations
 
@@ -6,16 +6,15 @@ import hashlib
 import json
 import logging
 import math
-import os
-import tempfile
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from policy.network import KeyframeNet, NetConfig, gripper_equivalent
+from rdd.atomic import atomic_file
 
 log = logging.getLogger(__name__)
 
@@ -204,21 +203,11 @@ def evaluate_network(net: KeyframeNet, data: KeyframeDataset, batch: int = 4096)
     }
 
 
-def cache_key(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainConfig) -> str:
-    """Hash of everything that determines a trained network."""
-    payload = json.dumps({"data": data.fingerprint(), "net": net_cfg.to_dict(),
-                          "train": {k: v for k, v in asdict(train_cfg).items() if k != "threads"},
-                          "version": 4}, sort_keys=True)
-    return hashlib.sha256(payload.encode()).hexdigest()[:24]
-
-
 def save_checkpoint(path: Path, net: KeyframeNet, meta: dict) -> None:
     """Write ``{state_dict, net config, meta}`` atomically."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    os.close(fd)
-    torch.save({"state_dict": net.state_dict(), "net_cfg": net.cfg.to_dict(), "meta": meta}, tmp)
-    os.replace(tmp, path)
+    with atomic_file(path) as fh:
+        torch.save({"state_dict": net.state_dict(), "net_cfg": net.cfg.to_dict(), "meta": meta}, fh)
 
 
 def load_checkpoint(path: Path) -> tuple[KeyframeNet, dict]:

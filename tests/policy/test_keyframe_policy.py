@@ -12,7 +12,13 @@ from envs.expert import run_expert  # noqa: E402
 from envs.labeler import PrivilegedLabeler, object_label  # noqa: E402
 from policy.features import observation_at  # noqa: E402
 from policy.interface import KeyframeAction  # noqa: E402
-from policy.keyframe import DatasetConfig, PolicyTrainConfig, train_or_load  # noqa: E402
+from policy.keyframe import (  # noqa: E402
+    CHECKPOINT_FILE,
+    DatasetConfig,
+    KeyframeBCPolicy,
+    PolicyTrainConfig,
+    train_policy,
+)
 from policy.training import TrainConfig  # noqa: E402
 
 
@@ -30,9 +36,9 @@ def trained(tmp_path_factory):
     episodes = [_episode("stack_blocks", s) for s in range(4)]
     cfg = PolicyTrainConfig(train=TrainConfig(epochs=1, min_steps=500, batch_size=64),
                            data=DatasetConfig(frames_per_segment=4))
-    cache = tmp_path_factory.mktemp("policy")
-    policy = train_or_load(episodes, PrivilegedLabeler(), cache, cfg)
-    return policy, episodes, cfg, cache
+    out = tmp_path_factory.mktemp("policy")
+    policy = train_policy(episodes, PrivilegedLabeler(), out, cfg)
+    return policy, episodes, cfg, out
 
 
 def test_instructions_naming_different_objects_give_targets_near_them(trained):
@@ -67,11 +73,11 @@ def test_unfamiliar_instruction_still_yields_a_valid_action(trained):
         assert np.all(np.isfinite(action.position)) and np.isclose(np.linalg.norm(action.quaternion), 1.0)
 
 
-def test_trained_policy_is_cached_by_data_and_config(trained):
-    policy, episodes, cfg, cache = trained
-    again = train_or_load(episodes, PrivilegedLabeler(), cache, cfg)
-    assert again.checkpoint == policy.checkpoint
-    assert len(list(cache.glob("keyframe_policy_*.pt"))) == 1
+def test_trained_policy_is_saved_into_its_output_folder(trained):
+    policy, episodes, cfg, out = trained
+    assert policy.checkpoint == out / CHECKPOINT_FILE
+    assert sorted(p.name for p in out.iterdir()) == ["keyframe_policy.json", CHECKPOINT_FILE]
+    again = KeyframeBCPolicy.from_checkpoint(policy.checkpoint)
     obs = observation_at(episodes[1], 0)
     assert np.allclose(again.act(obs, "grasp the green block").to_array(),
                        policy.act(obs, "grasp the green block").to_array())
