@@ -18,22 +18,15 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from rdd.atomic import atomic_file, write_text_atomic
 from rdd.database import SubtaskDatabase
 from rdd.decomposers.rdd import RDDDecomposer
 from rdd.encoders.embed import l2_normalize
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
 
 
 class World:
@@ -240,7 +233,7 @@ def main(argv: list[str] | None = None) -> dict:
                   f"without {b:8.3f} s ({b_cpu:8.3f} s CPU)")
         results["scaling"] = rows
         _write_scaling(rows, args.out, args.max_len, len(db))
-    _atomic_text(args.out / "results.json", json.dumps(results, indent=2, default=float))
+    write_text_atomic(args.out / "results.json", json.dumps(results, indent=2, default=float))
     print(f"wrote {args.out}/results.json")
     return results
 
@@ -318,12 +311,12 @@ def _write_scaling(rows: list[dict], out: Path, max_len: int, entries: int) -> N
     csv = "T,with_lmax_s,without_lmax_s,with_lmax_cpu_s,without_lmax_cpu_s\n" + "".join(
         f"{r['T']},{r['with_lmax_s']:.4f},{r['without_lmax_s']:.4f},"
         f"{r['with_lmax_cpu_s']:.4f},{r['without_lmax_cpu_s']:.4f}\n" for r in rows)
-    _atomic_text(out / "scaling.csv", csv)
+    write_text_atomic(out / "scaling.csv", csv)
     md = [f"| T | exact, L_max={max_len}: wall (s) | CPU (s) | exact, no L_max: wall (s) | CPU (s) |",
           "|---:|---:|---:|---:|---:|"]
     md += [f"| {r['T']} | {r['with_lmax_s']:.3f} | {r['with_lmax_cpu_s']:.3f} | {r['without_lmax_s']:.3f} "
            f"| {r['without_lmax_cpu_s']:.3f} |" for r in rows]
-    _atomic_text(out / "scaling.md", "\n".join(md) + "\n")
+    write_text_atomic(out / "scaling.md", "\n".join(md) + "\n")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -339,10 +332,9 @@ def _write_scaling(rows: list[dict], out: Path, max_len: int, entries: int) -> N
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    tmp = out / "scaling.png.tmp"
-    fig.savefig(tmp, format="png", dpi=120)
+    with atomic_file(out / "scaling.png") as fh:
+        fig.savefig(fh, format="png", dpi=120)
     plt.close(fig)
-    os.replace(tmp, out / "scaling.png")
 
 
 if __name__ == "__main__":

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rdd.atomic import write_text_atomic
+
 
 def synthetic_episode(frames: int, size: int = 128, seed: int = 0):
     """An episode with smoothly varying front and wrist views (content does not affect speed)."""
@@ -123,10 +125,7 @@ def main(argv: list[str] | None = None) -> dict:
               "encoders": rows, "cache": cache}
     print(f"load average (1, 5, 15 min) at the end: {os.getloadavg()}")
     if args.out:
-        out = Path(args.out)
-        tmp = out.with_suffix(out.suffix + ".tmp")
-        tmp.write_text(json.dumps(result, indent=2))
-        os.replace(tmp, out)
+        write_text_atomic(Path(args.out), json.dumps(result, indent=2))
     return result
 
 

@@ -9,9 +9,10 @@ keyframes are the same either way (a test checks this).
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
+
+from rdd.atomic import write_text_atomic
 
 
 def check_task(task: str, seeds, render: bool = False) -> dict:
@@ -60,10 +61,7 @@ def main(argv=None) -> int:
         lines.append(line)
         print(line + (f"  failures: {r['failures']}" if r["failures"] else ""), flush=True)
     if args.out:
-        out = Path(args.out)
-        tmp = out.with_name(f".{out.name}.tmp{os.getpid()}")
-        tmp.write_text("\n".join(lines) + "\n")
-        os.replace(tmp, out)
+        write_text_atomic(Path(args.out), "\n".join(lines) + "\n")
     return 0
 
 

@@ -17,10 +17,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+
+from rdd.atomic import write_text_atomic
 
 SPLIT_SEEDS: dict[str, range] = {
     "train": range(0, 10_000),
@@ -68,9 +69,7 @@ def _read_failed(path: Path) -> dict[str, str]:
 
 
 def _write_failed(path: Path, failed: dict[str, str]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps(failed, indent=1, sort_keys=True))
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(failed, indent=1, sort_keys=True))
 
 
 def default_max_failures(episodes: int) -> int:

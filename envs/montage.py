@@ -6,10 +6,11 @@
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 import numpy as np
+
+from rdd.atomic import atomic_file
 
 
 def task_montage(task_names, seed: int = 0, size: int = 128) -> np.ndarray:
@@ -51,9 +52,8 @@ def main(argv=None) -> int:
     img = task_montage(names, args.seed, args.size)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp{os.getpid()}.png")
-    Image.fromarray(img).save(tmp)
-    os.replace(tmp, out)
+    with atomic_file(out) as fh:
+        Image.fromarray(img).save(fh, format="PNG")
     print(f"wrote {out} ({img.shape[1]}x{img.shape[0]})")
     return 0
 

@@ -7,7 +7,6 @@ share state and a scene rebuilt from the same seed replays identically.
 from __future__ import annotations
 
 import hashlib
-import os
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from envs.quiet import native_output_silenced
+from rdd.atomic import write_text_atomic
 
 try:
     with native_output_silenced():  # pybullet prints its build-time banner on import
@@ -74,9 +74,7 @@ def _lite_panda_urdf() -> str:
     key = hashlib.sha256(text.encode()).hexdigest()[:16]
     out = Path(tempfile.gettempdir()) / f"rdd_envs_panda_{key}.urdf"
     if not out.is_file():
-        tmp = out.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_text(text)
-        os.replace(tmp, out)
+        write_text_atomic(out, text)
     return str(out)
 
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from experiments.results import RunRecord, assign_labels, load_runs
 from experiments.stats import episode_outcomes, paired_difference
+from rdd.atomic import write_text_atomic
 
 
 def _natural_key(path: Path) -> list[object]:
@@ -383,15 +384,14 @@ def plot_speed(runs: Sequence[RunRecord], path: Path) -> bool:
 
 
 def _save_fig(fig, path: Path) -> None:
-    import os
-
     import matplotlib.pyplot as plt
 
+    from rdd.atomic import atomic_file
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
-    fig.savefig(tmp, dpi=130)
+    with atomic_file(path) as fh:
+        fig.savefig(fh, dpi=130, format="png")
     plt.close(fig)
-    os.replace(tmp, path)
 
 
 TITLES = {
@@ -443,9 +443,7 @@ def write_tables(runs_dir: Path, out_dir: Path | None = None) -> tuple[str, list
         tex = "".join(t.latex() + "\n" for t in tables)
         for suffix, text in ((".md", md), (".tex", tex)):
             path = out_dir / f"{exp}{suffix}"
-            tmp = path.with_name(f".{path.name}.tmp")
-            tmp.write_text(text)
-            tmp.replace(path)
+            write_text_atomic(path, text)
             written.append(path)
         png = out_dir / f"{exp}_success.png"
         if plot_success(by_exp[exp], png, f"{exp}: success per task (mean ± std over seeds)"):

