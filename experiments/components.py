@@ -169,17 +169,15 @@ def embedding_cache(root: Path):
     return EmbeddingCache(root)
 
 
-def build_database(episodes, segments, instructions, encoder, views, cache, out: Path) -> None:
-    """Build the sub-task database of expert-segmented episodes and save it into ``out``."""
+def build_database(episodes, encoder, views, cache, out: Path) -> None:
+    """Build the sub-task database of episodes carrying their labelled segments; save it into ``out``."""
     from rdd.calibrate import calibrate, sample_episodes
     from rdd.database import SubtaskDatabase
 
-    for ep, ins in zip(episodes, instructions, strict=True):
-        ep.instructions = list(ins)  # entries keep the labeller's instruction
     names = [ep.name for ep in episodes]
     # Calibration (decomposer=rdd_calibrated) keeps whole-episode vectors of a sample of episodes.
     keep = sample_episodes(names) if len(set(names)) == len(names) > 1 else []
-    db = SubtaskDatabase.build(episodes, segments, encoder, views=tuple(views), cache=cache,
+    db = SubtaskDatabase.build(episodes, None, encoder, views=tuple(views), cache=cache,
                                keep_frames=keep)
     if keep:
         db.meta["calibration"] = calibrate(db)
@@ -197,22 +195,18 @@ def load_database(path: Path):
 POLICY_FILE = "policy.json"
 
 
-def train_policy(policy_cfg: DictConfig, episodes, segments, instructions, labeler, text_cache: Path,
-                 out: Path) -> None:
-    """Train the keyframe policy on expert-segmented episodes labelled by ``labeler`` into ``out``.
+def train_policy(policy_cfg: DictConfig, episodes, labeler, text_cache: Path, out: Path) -> None:
+    """Train the keyframe policy on episodes carrying expert segments labelled by ``labeler``.
 
-    ``instructions`` are the labels the pipeline recorded for these segments; the policy's
-    dataset builder labels the same segments with the same labeler, which is checked here.
+    The episodes' instructions are the labels the pipeline recorded for these segments; the
+    policy's dataset builder labels the same segments with the same labeler, which is checked here.
     """
-    import dataclasses
-
     from experiments.instantiate import instantiate_component
     from policy.keyframe import train_policy as train
     from policy.text import shared_embedder
 
     cfg = instantiate_component(policy_cfg, "policy")
-    eps = [dataclasses.replace(ep, segments=list(segs), instructions=list(ins))
-           for ep, segs, ins in zip(episodes, segments, instructions, strict=True)]
+    eps = list(episodes)
     for ep in eps[:1]:
         got = [labeler.label(ep, tuple(s)) for s in ep.segments]
         if got != list(ep.instructions):
@@ -248,40 +242,37 @@ def planner_base_spec(planner_cfg: DictConfig) -> dict[str, Any]:
     return {"model": cfg.model_dict()}
 
 
-def _examples(cfg, episodes, segments, instructions, settings) -> list:
+def _examples(cfg, episodes, settings) -> list:
     from planner.train import training_examples
 
-    return training_examples(episodes, settings, cfg.view, list(zip(segments, instructions,
-                                                                    strict=True)))
+    return training_examples(episodes, settings, cfg.view)  # each episode's own segments
 
 
-def pretrain_planner(planner_cfg: DictConfig, episodes, segments, instructions,
-                     corpus: Sequence[str], out: Path) -> None:
+def pretrain_planner(planner_cfg: DictConfig, episodes, corpus: Sequence[str], out: Path) -> None:
     """Pretrain the base planner on the pretraining tasks' demos (its tokenizer also sees ``corpus``)."""
     from planner.train import pretrain_base
 
     cfg = planner_config(planner_cfg)
-    examples = _examples(cfg, episodes, segments, instructions, cfg.pretrain)
+    examples = _examples(cfg, episodes, cfg.pretrain)
     path = pretrain_base(cfg, examples, out, extra_corpus=list(corpus), progress=progress_enabled())
     write_json_atomic(out / PLANNER_FILE, {"base": _relative(path, out)})
 
 
-def finetune_planner(planner_cfg: DictConfig, base_dir: Path, episodes, segments, instructions,
-                     seed: int, out: Path) -> None:
-    """LoRA-finetune the base planner on decomposed, labelled demonstrations."""
+def finetune_planner(planner_cfg: DictConfig, base_dir: Path, episodes, seed: int, out: Path) -> None:
+    """LoRA-finetune the base planner on demonstrations carrying their decomposition and labels."""
     from planner.train import finetune_lora
 
     cfg = planner_config(planner_cfg)
-    examples = _examples(cfg, episodes, segments, instructions, cfg.finetune)
+    examples = _examples(cfg, episodes, cfg.finetune)
     path = finetune_lora(cfg, _resolve(base_dir), examples, out, seed=seed, progress=progress_enabled())
     write_json_atomic(out / PLANNER_FILE, {"adapter": _relative(path, out)})
 
 
-def planner_test_examples(planner_cfg: DictConfig, episodes, segments, instructions) -> list:
+def planner_test_examples(planner_cfg: DictConfig, episodes) -> list:
     """Scoring examples: every segment start of labelled episodes, queried as in the closed loop."""
     from planner.config import TrainSettings
 
-    return _examples(planner_config(planner_cfg), episodes, segments, instructions, TrainSettings())
+    return _examples(planner_config(planner_cfg), episodes, TrainSettings())
 
 
 def _relative(path: Path, root: Path) -> str:

@@ -8,6 +8,7 @@ finetune (per decomposer, encoder, M, seed) -> evaluation (per planner, policy, 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import platform
@@ -34,6 +35,7 @@ from experiments.results import (
 )
 from experiments.stages import StageCache, read_json, spec_key, stage_code_key, write_json_atomic
 from experiments.validate import validate_config
+from rdd.data.episode import Episode
 
 log = logging.getLogger(__name__)
 
@@ -195,10 +197,10 @@ class Run:
             out.append(self._episode_cache[key])
         return out
 
-    def expert_labels(self, task: str, split: str, count: int) -> tuple[list, list, list, str]:
-        """Episodes with expert segments and labeller instructions, and a key over them."""
+    def expert_labels(self, task: str, split: str, count: int) -> tuple[list[Episode], str]:
+        """Episodes carrying expert segments and labeller instructions (copies), and a key over them."""
         episodes = self.episodes(task, split, count)
-        segments, instructions, keys = [], [], []
+        out, keys = [], []
         for ep in episodes:
             spec = {"episode": self._episode_keys[ep.name], "labeler": self.node("train_labeler")}
 
@@ -211,30 +213,27 @@ class Run:
 
             path, key = self.cache.get_or_build("expert_labels", spec, build)
             row = read_json(path / "labels.json")
-            segments.append([tuple(s) for s in row["segments"]])
-            instructions.append(row["instructions"])
+            out.append(with_segments(ep, row["segments"], row["instructions"]))
             keys.append(key)
-        return episodes, segments, instructions, spec_key({"parts": keys})
+        return out, spec_key({"parts": keys})
 
-    def labelled_set(self, tasks: list[str], split: str, count: int) -> tuple[list, list, list, str]:
+    def labelled_set(self, tasks: list[str], split: str, count: int) -> tuple[list[Episode], str]:
         """Expert-segmented, labelled episodes of several tasks, and a key over all of them."""
-        eps, segs, instr, keys = [], [], [], []
+        eps, keys = [], []
         for task in tasks:
-            e, s, i, k = self.expert_labels(task, split, count)
+            e, k = self.expert_labels(task, split, count)
             eps += e
-            segs += s
-            instr += i
             keys.append(k)
-        return eps, segs, instr, spec_key({"parts": keys})
+        return eps, spec_key({"parts": keys})
 
     def policy_stage(self) -> tuple[Path, str]:
         """The keyframe policy trained on expert-decomposed, labelled training episodes."""
-        eps, segs, instr, data_key = self.labelled_set(
+        eps, data_key = self.labelled_set(
             self.policy_tasks(), "train", int(self.cfg.data.train_episodes_per_task))
         spec = {"policy": self.node("policy"), "data": data_key}
         return self.cache.get_or_build(
             "policy", spec,
-            lambda tmp: comp.train_policy(self.cfg.policy, eps, segs, instr, self.train_labeler(),
+            lambda tmp: comp.train_policy(self.cfg.policy, eps, self.train_labeler(),
                                           self.text_cache(), tmp))
 
     def labeler(self):
@@ -272,12 +271,12 @@ class Run:
         """The sub-task database of the training episodes under this run's encoder."""
         if self._database is None:
             tasks = self.database_tasks()
-            eps, segs, instr, data_key = self.labelled_set(
+            eps, data_key = self.labelled_set(
                 tasks, "train", int(self.cfg.data.train_episodes_per_task))
             spec = {"data": data_key, "encoder": self.encoder_key(), "views": self.views}
             path, key = self.cache.get_or_build(
                 "database", spec,
-                lambda tmp: comp.build_database(eps, segs, instr, self.encoder(), self.views,
+                lambda tmp: comp.build_database(eps, self.encoder(), self.views,
                                                 self.embedding_cache(), tmp))
             self._database = comp.load_database(path)
             self._database_key = key
@@ -331,15 +330,15 @@ class Run:
         rows: list[dict[str, Any]] = []
         keys = []
         for task in tasks:
-            episodes, expert, _, expert_key = self.expert_labels(task, "val", m)
+            episodes, expert_key = self.expert_labels(task, "val", m)
             spec = {"demos": expert_key, **parts}
 
-            def build(tmp: Path, episodes=episodes, expert=expert, task=task) -> None:
+            def build(tmp: Path, episodes=episodes, task=task) -> None:
                 decomposer = instantiate_component(self.cfg.decomposer, "decomposer", self.providers())
                 labeler = self.labeler()
                 out = []
-                for ep, gt in progress(list(zip(episodes, expert, strict=True)),
-                                       desc=f"decompose {task}", unit="demo"):
+                for ep in progress(episodes, desc=f"decompose {task}", unit="demo"):
+                    gt = ep.segments
                     t0 = time.perf_counter()
                     dec = decomposer.decompose(ep)
                     seconds = time.perf_counter() - t0
@@ -362,19 +361,19 @@ class Run:
 
     def base_planner_dir(self) -> tuple[Path, str]:
         """The base planner pretrained on the pretraining tasks' expert demos (the w/o-finetune one)."""
-        eps, segs, instr, data_key = self.labelled_set(
+        eps, data_key = self.labelled_set(
             self.pretrain_tasks, "train", int(self.cfg.data.pretrain_episodes_per_task))
         # The tokenizer also covers the evaluation tasks' goals and labeller vocabulary (the paper's
         # planner is a pretrained VLM that already knows the words); no evaluation demo is trained on.
-        vocab_eps, _, vocab_instr, vocab_key = self.labelled_set(
+        vocab_eps, vocab_key = self.labelled_set(
             self.eval_tasks, "train", int(self.cfg.data.train_episodes_per_task))
-        corpus = sorted({s for ii in instr + vocab_instr for s in ii}
+        corpus = sorted({s for e in eps + vocab_eps for s in e.instructions}
                         | {e.goal for e in eps + vocab_eps})
         spec = {"planner": comp.planner_base_spec(self.cfg.planner), "data": data_key,
                 "vocabulary": vocab_key}
         return self.cache.get_or_build(
             "planner_base", spec,
-            lambda tmp: comp.pretrain_planner(self.cfg.planner, eps, segs, instr, corpus, tmp))
+            lambda tmp: comp.pretrain_planner(self.cfg.planner, eps, corpus, tmp))
 
     def planner_stage(self) -> tuple[Path, Path | None, str, dict[str, Any]]:
         """The planner for this run: the base, or the base LoRA-finetuned on the decomposed demos.
@@ -389,15 +388,13 @@ class Run:
         info["decompositions"] = rows
         episodes = {e.name: e for t in self.eval_tasks
                     for e in self.episodes(t, "val", int(self.cfg.data.val_episodes_per_task))}
-        eps = [episodes[r["episode"]] for r in rows]
-        segs = [[tuple(s) for s in r["segments"]] for r in rows]
-        instr = [r["instructions"] for r in rows]
+        # the validation demos as the decomposer cut them and the labeller named the pieces
+        eps = [with_segments(episodes[r["episode"]], r["segments"], r["instructions"]) for r in rows]
         spec = {"planner": self.node("planner"), "base": base_key, "decompositions": dec_key,
                 "seed": int(self.cfg.seed)}
         path, key = self.cache.get_or_build(
             "planner_finetune", spec,
-            lambda tmp: comp.finetune_planner(self.cfg.planner, base_dir, eps, segs, instr,
-                                              int(self.cfg.seed), tmp))
+            lambda tmp: comp.finetune_planner(self.cfg.planner, base_dir, eps, int(self.cfg.seed), tmp))
         info["finetune"] = key
         return base_dir, path, key, info
 
@@ -430,6 +427,12 @@ class Run:
         if n > int(self.cfg.eval.seed_stride):
             raise ValueError(f"eval.episodes_per_task={n} exceeds eval.seed_stride")
         return [base + i for i in range(n)]
+
+
+def with_segments(episode: Episode, segments: list, instructions: list[str]) -> Episode:
+    """A copy of ``episode`` carrying ``segments`` and their ``instructions`` (the cached one stays as is)."""
+    return dataclasses.replace(episode, segments=[tuple(int(v) for v in s) for s in segments],
+                               instructions=list(instructions), meta=dict(episode.meta))
 
 
 def finetunes(cfg: DictConfig) -> bool:
@@ -654,11 +657,11 @@ def _planner_eval(run: Run, results: dict[str, Any]) -> None:
 
     rows: list[dict[str, Any]] = []
     for task in run.eval_tasks:
-        eps, segs, instr, test_key = run.expert_labels(task, "test", n)
+        eps, test_key = run.expert_labels(task, "test", n)
         spec = {"planner": planner_key, "base": info["base"], "test": test_key}
 
-        def build(tmp: Path, eps=eps, segs=segs, instr=instr) -> None:
-            examples = comp.planner_test_examples(run.cfg.planner, eps, segs, instr)
+        def build(tmp: Path, eps=eps) -> None:
+            examples = comp.planner_test_examples(run.cfg.planner, eps)
             out = [{"task": e.task, "episode": e.episode, "frame": int(e.frame),
                     "previous": e.previous_instruction, "target": e.target} for e in examples]
             for name, planner in planners().items():
