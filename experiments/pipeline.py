@@ -158,7 +158,8 @@ class Run:
             try:
                 self._encoder = instantiate_component(self.cfg.encoder, "encoder")
             except (FileNotFoundError, ImportError, OSError) as exc:
-                raise Unavailable(f"encoder {self.cfg.encoder.get('name', '?')!r}: {exc}") from exc
+                name = str(self.cfg.encoder.get("_target_", "?")).removesuffix(".build").rsplit(".", 1)[-1]
+                raise Unavailable(f"encoder {name!r}: {exc}") from exc
             self._encoder_key = spec_key({"encoder": self.node("encoder"),
                                           "weights_id": self._encoder.weights_id})
         return self._encoder

@@ -24,9 +24,12 @@ from rdd.data.episode import Episode
 from rdd.data.load import FORMATS
 from rdd.encoders.embed import DEFAULT_VIEWS
 from rdd.progress import track_episodes
+from rdd.registry import available, component
 
 log = logging.getLogger("rdd")
-DECOMPOSERS = ("rdd", "uvd", "uniform", "expert", "vlm")
+# The registry's decomposers (rdd.registry: one module each in rdd/decomposers/), the same the
+# harness's conf/decomposer/*.yaml name as _target_.
+DECOMPOSERS = tuple(available("decomposer"))
 OUTPUT_VERSION = 1
 
 
@@ -164,8 +167,8 @@ def make_cache(args: argparse.Namespace):
 def expert_decomposer(args: argparse.Namespace, options: dict[str, Any] | None = None):
     """The expert rule with ``--stopping-delta``/``--velocity-source`` and any ``--option``."""
     from rdd.decomposers.base import check_option_names
-    from rdd.decomposers.expert import ExpertDecomposer
 
+    ExpertDecomposer = component("decomposer", "expert")
     options = dict(options or {})
     options.setdefault("stopping_delta", args.stopping_delta)
     options.setdefault("velocity_source", args.velocity_source)
@@ -313,19 +316,16 @@ def make_decomposer(args: argparse.Namespace, first: Episode):
             config.update(stopping_delta=args.stopping_delta, velocity_source=args.velocity_source)
             return expert_decomposer(args, options), config
         if name == "uniform":
-            from rdd.decomposers.uniform import UniformDecomposer
-
+            UniformDecomposer = component("decomposer", "uniform")
             check_option_names(UniformDecomposer, options)
             return UniformDecomposer(**options), config
         if name == "vlm":
-            from rdd.decomposers.vlm import VLMDecomposer
-
+            VLMDecomposer = component("decomposer", "vlm")
             check_option_names(VLMDecomposer, options, reserved=("views",))
             return VLMDecomposer(views=args.views or None, **options), config
         cache = make_cache(args)
         if name == "uvd":
-            from rdd.decomposers.uvd import UVDDecomposer
-
+            UVDDecomposer = component("decomposer", "uvd")
             check_option_names(UVDDecomposer, options, reserved=("encoder", "views", "cache"))
             views = resolve_views(args.views, first)
             encoder = make_encoder(args.encoder or "effnet_lite0",
@@ -334,8 +334,8 @@ def make_decomposer(args: argparse.Namespace, first: Episode):
             return UVDDecomposer(encoder=encoder, views=views, cache=cache, **options), config
         if name == "rdd":
             from rdd.database import SubtaskDatabase
-            from rdd.decomposers.rdd import RDDDecomposer
 
+            RDDDecomposer = component("decomposer", "rdd")
             if not args.db:
                 raise CLIError("--decomposer rdd needs --db DIR (build one with `python -m rdd build-db`)")
             check_option_names(RDDDecomposer, options, reserved=("database", "encoder", "views", "cache"))
@@ -660,16 +660,13 @@ def reader_help() -> str:
 
 def decomposer_help() -> str:
     """Each decomposer's ``--option`` keys and defaults, read from its constructor."""
-    import importlib
-
     lines = ["decomposer options (--option KEY=VALUE):"]
     reserved = {"self", "database", "encoder", "views", "cache"}
-    for name, (module, cls) in {"expert": ("expert", "ExpertDecomposer"), "uniform": ("uniform", "UniformDecomposer"),
-                                "uvd": ("uvd", "UVDDecomposer"), "rdd": ("rdd", "RDDDecomposer")}.items():
-        init = getattr(importlib.import_module(f"rdd.decomposers.{module}"), cls).__init__
-        params = [p for p in inspect.signature(init).parameters.values() if p.name not in reserved]
+    for name in DECOMPOSERS:
+        init = component("decomposer", name).__init__
+        params = [p for p in inspect.signature(init).parameters.values()
+                  if p.name not in reserved and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
         lines.append(f"  {name}: " + ", ".join(f"{p.name}={p.default!r}" for p in params))
-    lines.append("  vlm: see rdd/decomposers/vlm.py (backend, base_url, model, checkpoint, ...)")
     return "\n".join(lines)
 
 

@@ -146,3 +146,20 @@ def test_default_is_the_quick_rdd_effnet_run():
     choices = cfg.hydra.runtime.choices
     assert (choices.decomposer, choices.encoder, choices.experiment) == ("rdd", "effnet_lite0", "quick")
     assert cfg.wandb.mode == "offline"
+
+
+@pytest.mark.parametrize("group", ["decomposer", "encoder", "index"])
+def test_hydra_options_name_the_rdd_registry_s_components(group: str):
+    """conf/<group>/*.yaml target the very objects `python -m rdd` builds by name (one registry)."""
+    from rdd.registry import available, name_of
+
+    named = set()
+    for option in _options(group):
+        node = OmegaConf.load(CONF / group / f"{option}.yaml")
+        if "_target_" not in node:
+            assert (group, option) == ("decomposer", "none")  # nothing is decomposed
+            continue
+        name = name_of(group, node._target_)
+        assert name is not None, f"conf/{group}/{option}.yaml: {node._target_} is not in rdd.registry"
+        named.add(name)
+    assert named == set(available(group))  # and every registered component has an option

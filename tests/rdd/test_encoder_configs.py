@@ -23,11 +23,12 @@ def test_every_encoder_module_has_a_config_and_back():
 
 @pytest.mark.parametrize("name", available_encoders())
 def test_config_options_are_builder_arguments(name):
+    from rdd.registry import target
+
     cfg = _yaml(name)
-    assert cfg["_target_"] == "rdd.encoders.load_encoder"
-    assert cfg["name"] == name
+    assert cfg["_target_"] == target("encoder", name) == f"rdd.encoders.{name}.build"
     params = inspect.signature(importlib.import_module(f"rdd.encoders.{name}").build).parameters
-    unknown = set(cfg) - {"_target_", "name"} - set(params)
+    unknown = set(cfg) - {"_target_"} - set(params)
     assert not unknown, f"conf/encoder/{name}.yaml has options build() does not take: {unknown}"
 
 
