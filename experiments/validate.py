@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import inspect
 import os
 import types
@@ -58,8 +59,8 @@ def _is_component(value: Any) -> bool:
 
 def _conforms(value: Any, hint: Any) -> bool:
     """Whether a config value can be given for a parameter annotated ``hint`` (unknown hints pass)."""
-    if hint is Any or hint is inspect.Parameter.empty or isinstance(hint, typing.TypeVar):
-        return True
+    if hint is Any or hint is inspect.Parameter.empty or isinstance(hint, typing.TypeVar | str):
+        return True  # no hint, or one that did not resolve here: nothing to check against
     if _is_component(value):
         return True  # a nested component: checked on its own against its target
     origin = typing.get_origin(hint)
@@ -101,6 +102,8 @@ def _conforms(value: Any, hint: Any) -> bool:
 
 
 def _hints(fn: Callable[..., Any]) -> dict[str, Any]:
+    while isinstance(fn, functools.partial):  # a factory made by partial: the function's own hints
+        fn = fn.func
     target = fn.__init__ if inspect.isclass(fn) else fn
     try:
         return typing.get_type_hints(target)
