@@ -201,26 +201,28 @@ def train_policy(policy_cfg: DictConfig, episodes, labeler, text_cache: Path, ou
     The episodes' instructions are the labels the pipeline recorded for these segments; the
     policy's dataset builder labels the same segments with the same labeler, which is checked here.
     """
-    from experiments.instantiate import instantiate_component
-    from policy.keyframe import train_policy as train
+    from experiments.instantiate import component_factory
     from policy.text import shared_embedder
 
-    cfg = instantiate_component(policy_cfg, "policy")
+    train = component_factory(policy_cfg, "policy")
     eps = list(episodes)
     for ep in eps[:1]:
         got = [labeler.label(ep, tuple(s)) for s in ep.segments]
         if got != list(ep.instructions):
             raise RuntimeError(f"labeler is not deterministic on {ep.name}: {got} != {ep.instructions}")
-    policy = train(eps, labeler, out, cfg, embedder=shared_embedder(text_cache))
-    write_json_atomic(out / POLICY_FILE, {"checkpoint": _relative(policy.checkpoint, out)})
+    policy = train(episodes=eps, labeler=labeler, out_dir=out, embedder=shared_embedder(text_cache))
+    cls = type(policy)
+    write_json_atomic(out / POLICY_FILE, {"checkpoint": _relative(policy.checkpoint, out),
+                                          "class": f"{cls.__module__}.{cls.__qualname__}"})
 
 
 def load_policy(policy_cfg: DictConfig, path: Path, text_cache: Path):
     """The trained policy stored in the stage directory ``path``."""
-    from policy.keyframe import KeyframeBCPolicy
+    from hydra.utils import get_object
 
     info = read_json(path / POLICY_FILE)
-    return KeyframeBCPolicy.from_checkpoint(path / info["checkpoint"], text_cache_dir=text_cache)
+    cls = get_object(info["class"])  # the class its training factory returned
+    return cls.from_checkpoint(path / info["checkpoint"], text_cache_dir=text_cache)
 
 
 # --- planner ---------------------------------------------------------------------------------------

@@ -67,6 +67,17 @@ def check_component(node: DictConfig, group: str) -> None:
         )
 
 
+def component_factory(node: DictConfig, group: str) -> functools.partial:
+    """The ``_target_`` with the config's options bound; the caller passes the runtime objects."""
+    from hydra.utils import instantiate
+
+    check_component(node, group)
+    partial = instantiate(node, _partial_=True)
+    if not isinstance(partial, functools.partial):
+        raise TypeError(f"config group {group!r}: {node._target_} did not give a partial")
+    return partial
+
+
 def instantiate_component(
     node: DictConfig,
     group: str,

@@ -120,11 +120,17 @@ class PolicyTrainConfig:
 CHECKPOINT_FILE = "keyframe_policy.pt"
 
 
-def train_policy(episodes: Sequence[Episode], labeler: Labeler, out_dir: str | os.PathLike,
-                 cfg: PolicyTrainConfig | None = None,
+def train_policy(episodes: Sequence[Episode], labeler: Labeler, out_dir: str | os.PathLike, *,
+                 net: NetConfig | None = None, train: TrainConfig | None = None,
+                 data: DatasetConfig | None = None,
                  embedder: InstructionEmbedder | None = None) -> KeyframeBCPolicy:
-    """Train on ``episodes`` and save the network (``keyframe_policy.pt`` + ``.json``) into ``out_dir``."""
-    cfg = cfg or PolicyTrainConfig()
+    """Train on ``episodes`` and save the network (``keyframe_policy.pt`` + ``.json``) into ``out_dir``.
+
+    The factory ``conf/policy/keyframe_bc.yaml`` names: its options are ``net``, ``train`` and
+    ``data``; the episodes, labeler, folder and instruction embedder come from the caller.
+    """
+    cfg = PolicyTrainConfig(net=net or NetConfig(), train=train or TrainConfig(),
+                            data=data or DatasetConfig())
     out_dir = Path(out_dir)
     embedder = embedder or shared_embedder(None)
     data = build_dataset(episodes, labeler, embedder, cfg.data)

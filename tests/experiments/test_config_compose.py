@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +68,13 @@ def test_option_composes_and_instantiates(group: str, option: str, providers):
         assert group == "decomposer" and option == "none"  # the w/o-finetune planner
         return
     check_component(node, group)
+    if group == "policy":
+        # a training factory: the pipeline passes the episodes, labeller and folder at the call site
+        from experiments.instantiate import component_factory
+
+        factory = component_factory(node, group)
+        assert {"episodes", "labeler", "out_dir"} <= set(inspect.signature(factory).parameters)
+        return
     try:
         obj = instantiate_component(node, group, providers)
     except FileNotFoundError as exc:

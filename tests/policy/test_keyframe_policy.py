@@ -35,9 +35,9 @@ def trained(tmp_path_factory):
     # appears both as a target and as a distractor.
     episodes = [_episode("stack_blocks", s) for s in range(4)]
     cfg = PolicyTrainConfig(train=TrainConfig(epochs=1, min_steps=500, batch_size=64),
-                           data=DatasetConfig(frames_per_segment=4))
+                            data=DatasetConfig(frames_per_segment=4))
     out = tmp_path_factory.mktemp("policy")
-    policy = train_policy(episodes, PrivilegedLabeler(), out, cfg)
+    policy = train_policy(episodes, PrivilegedLabeler(), out, net=cfg.net, train=cfg.train, data=cfg.data)
     return policy, episodes, cfg, out
 
 
