@@ -46,7 +46,9 @@ class RetrievalLabeler:
         if key not in self._fv:
             if len(self._fv) >= 8:  # keep memory bounded across long evaluation loops
                 self._fv.pop(next(iter(self._fv)))
-            self._fv[key] = episode_frame_vectors(episode, self.encoder, views=self.views, cache=self.cache)
+            self._fv[key] = episode_frame_vectors(
+                episode, self.encoder, views=self.views, cache=self.cache,
+                normalize=bool(self.database.meta.get("normalize_views", True)))
         return self._fv[key]
 
     def nearest(self, episode: Episode, segments: Sequence[Segment]) -> tuple[np.ndarray, np.ndarray]:
