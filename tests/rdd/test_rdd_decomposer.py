@@ -222,6 +222,22 @@ def test_decompose_episode_matches_embeddings_and_checks_encoder():
         RDDDecomposer(db).decompose(test_ep)
 
 
+def test_raw_views_database_decomposes_with_raw_frame_vectors():
+    rng = np.random.default_rng(4)
+    enc = PixelMeanEncoder()
+    train = [Episode(name=f"tr{i}", task="t", views={v: rng.integers(0, 256, (20, 8, 8, 3), dtype=np.uint8)
+                                                    for v in ("front", "wrist")},
+                     segments=[(0, 7), (7, 20)], instructions=["a", "b"]) for i in range(3)]
+    db = SubtaskDatabase.build(train, None, enc, normalize_views=False)
+    raw = episode_frame_vectors(train[2], enc, normalize=False)
+    np.testing.assert_allclose(db.end[-1], raw[19], rtol=1e-6)
+    dec = RDDDecomposer(db, encoder=enc)
+    assert dec.normalize_views is False
+    got = dec.decompose(train[2])
+    assert got.segments == dec.decompose_embeddings(raw).segments == [(0, 7), (7, 20)]
+    assert [n["distance"] for n in got.neighbours] == pytest.approx([0.0, 0.0], abs=1e-3)
+
+
 def test_bad_arguments(world_db):
     _, db, _ = world_db
     with pytest.raises(ValueError, match="mode"):
