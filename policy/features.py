@@ -26,8 +26,11 @@ GRIPPER_ANCHOR = "the gripper"
 WORLD_ANCHOR = "the table"
 # held flag, articulation opening (0..1), fixture flag, has-articulation flag, rests on another
 # object, carries another object (the last two tell a stacked block from a free one of the
-# same colour: their heights differ by a plate's thickness only).
-STATE_DIM = 6
+# same colour: their heights differ by a plate's thickness only), and the height of what it
+# carries (in units of STACK_UNIT metres): "place onto the stack" lands one block higher on a
+# plate that carries two blocks than on one that carries one, and the plate alone cannot tell.
+STATE_DIM = 7
+STACK_UNIT = 0.1
 SUPPORT_MARGIN = 0.01  # metres of horizontal slack in the footprint test
 OBS_KEYS = ("ee_pose", "gripper_open", "object_positions", "object_quaternions",
             "articulation_states", "held_object", "objects", "articulations")
@@ -83,9 +86,11 @@ def anchors_from_observation(obs: Mapping[str, Any]) -> Anchors:
                 state[i, 1] = (astate[m] - float(a.get("closed", 0.0))) / span
                 state[i, 3] = 1.0
     on = _resting_on(opos, objects)
+    sizes = _sizes(objects)
     for i in range(k):
         state[i, 4] = 1.0 if (on[i] >= 0 and i != held) else 0.0
         state[i, 5] = 1.0 if any(on[j] == i and j != held for j in range(k)) else 0.0
+        state[i, 6] = _carried_height(i, on, held, opos, sizes) / STACK_UNIT
     state[k, 0] = 1.0 if held >= 0 else 0.0  # the gripper anchor: holding something
     names = [object_label(o) for o in objects] + [GRIPPER_ANCHOR, WORLD_ANCHOR]
     pos = np.concatenate([opos, ee[None, :3], np.zeros((1, 3))])
@@ -93,9 +98,29 @@ def anchors_from_observation(obs: Mapping[str, Any]) -> Anchors:
     return Anchors(names, pos, yaw, state, np.concatenate([ee, [grip]]))
 
 
+def _sizes(objects: list[dict]) -> np.ndarray:
+    return np.array([o.get("size", [0.0, 0.0, 0.0]) for o in objects], dtype=np.float64).reshape(-1, 3)
+
+
+def _carried_height(i: int, on: list[int], held: int, pos: np.ndarray, sizes: np.ndarray) -> float:
+    """How far the top of the unheld pile resting (directly or not) on object ``i`` rises above
+    ``i``'s own top; 0 when nothing rests on it."""
+    top = pos[i, 2] + 0.5 * sizes[i, 2]
+    best = top
+    frontier, seen = [i], {i}
+    while frontier:
+        parent = frontier.pop()
+        for j, under in enumerate(on):
+            if under == parent and j != held and j not in seen:
+                seen.add(j)
+                frontier.append(j)
+                best = max(best, pos[j, 2] + 0.5 * sizes[j, 2])
+    return float(best - top)
+
+
 def _resting_on(pos: np.ndarray, objects: list[dict]) -> list[int]:
     """For each object, the index of the non-fixture object right under it (-1 for none)."""
-    sizes = np.array([o.get("size", [0.0, 0.0, 0.0]) for o in objects], dtype=np.float64).reshape(-1, 3)
+    sizes = _sizes(objects)
     out = []
     for i in range(len(objects)):
         best, best_z = -1, -np.inf

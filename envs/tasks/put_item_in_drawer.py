@@ -37,7 +37,12 @@ class PutItemInDrawer(Task):
         cab = build_cabinet(scene, self, rng.uniform(CAB_X[0], CAB_X[1]), side * rng.uniform(CAB_Y[0], CAB_Y[1]),
                             side * CAB_YAW, target=self.params["drawer"])
         self.cabinet = cab
-        yaw = rng.uniform(-0.5, 0.5)
+        # The item lies turned by up to +-0.5 rad from the cabinet's own heading (RLBench keeps it
+        # at one fixed pose on the cabinet). Measured from the cabinet, not the world: from the
+        # world, item yaw 0 sat exactly where the grasp nearest "across the drawer" jumps by a
+        # quarter turn, so the expert's grasp flipped on the sign of a small yaw, which a policy
+        # cannot learn from a few demos (it fell between the two and hit the cabinet).
+        yaw = side * CAB_YAW + rng.uniform(-0.5, 0.5)
         pos = cab.to_world((rng.uniform(0.05, 0.08), rng.uniform(-0.05, 0.05), cab.top_z + ITEM_HALF))
         item = scene.add_box((ITEM_HALF,) * 3, pos, scene.p.getQuaternionFromEuler((0, 0, yaw)),
                              color="purple", mass=0.05)
@@ -59,7 +64,10 @@ class PutItemInDrawer(Task):
     def expert(self) -> Iterator[Waypoint]:
         """Open the drawer, then pick the item and drop it in the tray."""
         d = self.params["drawer"]
-        yield from pull_drawer_waypoints(self, self.cabinet, d, distance=0.185)
+        # open_drawer's pull: the same instruction then means the same motion in both tasks (a
+        # longer pull here left 1.5 cm to the drawer's end stop, and its hand orientation, chosen
+        # by reachability at the pull's midpoint, differed from open_drawer's on the same cabinet)
+        yield from pull_drawer_waypoints(self, self.cabinet, d)
         pos, orn = self.pose("item")
         # Fingers across the drawer, so the hand's long side clears the cabinet front.
         w = self.cabinet.width_direction

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from envs.scene import TABLE_TOP, Scene
-from envs.tasks.base import Task, Waypoint, grasp_yaw, sample_positions, yaw_of
+from envs.tasks.base import HOME_FINGER_YAW, Task, Waypoint, grasp_yaw, sample_positions, yaw_of
 
 HALF = 0.025
 COLORS = ("red", "green", "blue", "yellow")
@@ -37,7 +37,10 @@ class StackBlocks(Task):
         self.targets = []
         for i, p in enumerate(xy[1:]):
             c = color if i < count else distractors[i - count]
-            yaw = rng.uniform(-np.pi / 4, np.pi / 4)
+            # A full quarter turn of yaws (a cube looks the same every quarter turn), centred on
+            # the home finger yaw: centred on 0, the grasp nearest the home yaw jumped by a
+            # quarter turn on the sign of a small yaw, which a policy cannot learn from few demos.
+            yaw = HOME_FINGER_YAW + rng.uniform(-np.pi / 4, np.pi / 4)
             q = scene.p.getQuaternionFromEuler((0, 0, yaw))
             body = scene.add_box((HALF,) * 3, (*p, TABLE_TOP + HALF), q, color=c, mass=0.1)
             name = f"{c}_block_{i}" if i < count else f"{c}_block"

@@ -1,0 +1,44 @@
+"""Per-anchor state: what rests on what, and how high the pile an object carries rises."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from policy.features import STACK_UNIT, anchors_from_observation
+
+PLATE_TOP = 0.76
+BLOCK = 0.05
+
+
+def _obs(held: int = -1) -> dict:
+    # plate, a block on it, a block on that block, a free block on the table
+    objects = [
+        {"name": "plate", "type": "plate", "color": "grey", "size": [0.1, 0.1, 0.01], "role": "target"},
+        {"name": "red_block_0", "type": "block", "color": "red", "size": [BLOCK] * 3, "role": "target"},
+        {"name": "red_block_1", "type": "block", "color": "red", "size": [BLOCK] * 3, "role": "target"},
+        {"name": "red_block_2", "type": "block", "color": "red", "size": [BLOCK] * 3, "role": "target"},
+    ]
+    pos = [[0.5, 0.0, PLATE_TOP - 0.005],
+           [0.501, 0.002, PLATE_TOP + BLOCK / 2],
+           [0.499, -0.001, PLATE_TOP + 1.5 * BLOCK],
+           [0.4, 0.2, PLATE_TOP - 0.01 + BLOCK / 2]]
+    return {"ee_pose": np.array([0.3, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0]), "gripper_open": 1.0,
+            "object_positions": np.array(pos), "object_quaternions": np.tile([0, 0, 0, 1.0], (4, 1)),
+            "articulation_states": np.zeros(0), "held_object": held, "objects": objects,
+            "articulations": []}
+
+
+def test_carried_height_counts_the_whole_pile_in_block_heights():
+    state = anchors_from_observation(_obs()).state
+    # the plate carries two blocks: the pile's top is 2 block heights above the plate's top
+    assert np.isclose(state[0, 6] * STACK_UNIT, 2 * BLOCK, atol=1e-6)
+    assert np.isclose(state[1, 6] * STACK_UNIT, BLOCK, atol=1e-6)
+    assert state[2, 6] == 0.0 and state[3, 6] == 0.0
+    # rests-on / carries flags agree with the geometry
+    assert list(state[:4, 4]) == [0, 1, 1, 0] and list(state[:4, 5]) == [1, 1, 0, 0]
+
+
+def test_a_held_block_is_not_part_of_the_pile():
+    state = anchors_from_observation(_obs(held=2)).state
+    assert np.isclose(state[0, 6] * STACK_UNIT, BLOCK, atol=1e-6)
+    assert state[1, 6] == 0.0
