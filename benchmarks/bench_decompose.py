@@ -60,6 +60,19 @@ class World:
         x, segs = self._walk(num_frames, seg_len)
         return self._embed(x), segs
 
+    def waypoint_database(self, entries: int, chunk: int = 65536) -> SubtaskDatabase:
+        """``entries`` sub-tasks between random waypoint pairs (noisy ends), without walking whole
+        trajectories: the same kind of entries as :meth:`database`, cheap at a million."""
+        rng, w = self.rng, self.waypoints
+        begin, end = [], []
+        for a in range(0, entries, chunk):
+            n = min(chunk, entries - a)
+            pa, pb = rng.integers(len(w), size=n), rng.integers(len(w), size=n)
+            begin.append(self._embed(w[pa] + 0.05 * rng.normal(size=(n, w.shape[1]))).astype(np.float32))
+            end.append(self._embed(w[pb] + 0.05 * rng.normal(size=(n, w.shape[1]))).astype(np.float32))
+        return SubtaskDatabase.from_arrays(np.concatenate(begin), np.concatenate(end),
+                                           rng.integers(19, 79, size=entries))
+
     def database(self, entries: int) -> SubtaskDatabase:
         """``entries`` sub-tasks cut at the true boundaries of synthetic training trajectories."""
         begin, end, dur, count = [], [], [], 0
@@ -270,7 +283,7 @@ def scale_section(world: World, fv: np.ndarray, args) -> list[dict]:
     """
     rows = []
     for n in [int(x) for x in args.scale.split(",") if x]:
-        db = world.database(n)
+        db = world.database(n) if n <= 200_000 else world.waypoint_database(n)
         exact_ids = exact_dist = exact_segs = None
         for name in [b for b in args.scale_backends.split(",") if b]:
             backend, options = SCALE_SPECS[name]
