@@ -175,8 +175,8 @@ class Run:
         return comp.embedding_cache(Path(self.cfg.paths.cache_dir) / "embeddings")
 
     # --- stages ----------------------------------------------------------------------------------
-    def episodes(self, task: str, split: str, count: int) -> list:
-        """The first ``count`` successful scripted demos of ``task`` in ``split`` (cached).
+    def episodes(self, task: str, split: str, count: int, first: int = 0) -> list:
+        """Successful scripted demos ``first .. first+count-1`` of ``task`` in ``split`` (cached).
 
         Generation is resumable per episode, so a run asking for 3 demos reuses the 1 an earlier
         run made; each episode's key is its env config, task, split and seed.
@@ -186,7 +186,9 @@ class Run:
         with self.cache.lock("demos", f"{env_key}-{task}-{split}"), \
                 self.cache.timed("episodes") as timing:
             before = set(root.glob(f"{split}/{task}/*/episode.json"))
-            dirs = comp.episodes_for(self.cfg.env, task, split, count, root)
+            if first < 0:
+                raise ValueError(f"data.val_first_episode must be >= 0, got {first}")
+            dirs = comp.episodes_for(self.cfg.env, task, split, first + count, root)[first:]
             timing["cached"] = all(d / "episode.json" in before for d in dirs)
         out = []
         for d in dirs:
@@ -198,9 +200,9 @@ class Run:
             out.append(self._episode_cache[key])
         return out
 
-    def expert_labels(self, task: str, split: str, count: int) -> tuple[list[Episode], str]:
+    def expert_labels(self, task: str, split: str, count: int, first: int = 0) -> tuple[list[Episode], str]:
         """Episodes carrying expert segments and labeller instructions (copies), and a key over them."""
-        episodes = self.episodes(task, split, count)
+        episodes = self.episodes(task, split, count, first)
         out, keys = [], []
         for ep in episodes:
             spec = {"episode": self._episode_keys[ep.name], "labeler": self.node("train_labeler")}
@@ -331,7 +333,7 @@ class Run:
         rows: list[dict[str, Any]] = []
         keys = []
         for task in tasks:
-            episodes, expert_key = self.expert_labels(task, "val", m)
+            episodes, expert_key = self.expert_labels(task, "val", m, int(self.cfg.data.val_first_episode))
             spec = {"demos": expert_key, **parts}
 
             def build(tmp: Path, episodes=episodes, task=task) -> None:
@@ -388,7 +390,8 @@ class Run:
         rows, dec_key = self.decompositions(self.eval_tasks)
         info["decompositions"] = rows
         episodes = {e.name: e for t in self.eval_tasks
-                    for e in self.episodes(t, "val", int(self.cfg.data.val_episodes_per_task))}
+                    for e in self.episodes(t, "val", int(self.cfg.data.val_episodes_per_task),
+                                           int(self.cfg.data.val_first_episode))}
         # the validation demos as the decomposer cut them and the labeller named the pieces
         eps = [with_segments(episodes[r["episode"]], r["segments"], r["instructions"]) for r in rows]
         spec = {"planner": self.node("planner"), "base": base_key, "decompositions": dec_key,

@@ -1,7 +1,8 @@
 """Every table of the paper with one command: ``python -m experiments.reproduce [--scale default|paper]``.
 
-A scale is a plan, ``conf/reproduce/<scale>.yaml``: one entry per table, each a Hydra multirun of
-``run.py`` (an experiment config plus extra command-line overrides). Tables run one after another;
+A scale is a plan, ``conf/reproduce/<scale>.yaml``: one entry per table, each one Hydra multirun of
+``run.py`` (an experiment config plus extra command-line overrides) or several (``sweeps``: e.g.
+the paper's demo ablation, M=1 on three disjoint demo sets beside M=3, which is no Cartesian sweep). Tables run one after another;
 all of them share the stage cache, so a stage that several tables need (demonstrations, policy,
 database, base planner, ...) is built once. A finished table leaves ``DONE.json`` beside its runs
 (the command, commit, wall time): a rerun with the same command skips it and does no work; a table
@@ -44,22 +45,31 @@ class PlanError(ValueError):
 
 @dataclass(frozen=True)
 class TablePlan:
-    """One table: a multirun of ``experiment`` with extra overrides."""
+    """One table: one or more multiruns of ``experiment``, each with its extra overrides."""
 
     name: str
     experiment: str
-    overrides: tuple[str, ...] = ()
+    sweeps: tuple[tuple[str, ...], ...] = ((),)
     description: str = ""
 
-    def command(self, sweep_dir: Path, cache_dir: Path | None) -> list[str]:
-        """The ``run.py`` command line of this table's multirun."""
-        # run.py relative to the repository root (the child's working directory), so the recorded
-        # command is the one a reader types.
-        cmd = [sys.executable, "run.py", "-m", f"experiment={self.experiment}",
-               *self.overrides, f"hydra.sweep.dir={sweep_dir}"]
-        if cache_dir is not None:
-            cmd.append(f"paths.cache_dir={cache_dir}")
-        return cmd
+    def sweep_dirs(self, table_dir: Path) -> list[Path]:
+        """Where each multirun writes: the table's folder, or ``part<i>`` in it for several."""
+        if len(self.sweeps) == 1:
+            return [table_dir]
+        return [table_dir / f"part{i}" for i in range(len(self.sweeps))]
+
+    def commands(self, table_dir: Path, cache_dir: Path | None) -> list[list[str]]:
+        """The ``run.py`` command line of each of this table's multiruns."""
+        cmds = []
+        for overrides, sweep_dir in zip(self.sweeps, self.sweep_dirs(table_dir), strict=True):
+            # run.py relative to the repository root (the child's working directory), so the
+            # recorded command is the one a reader types.
+            cmd = [sys.executable, "run.py", "-m", f"experiment={self.experiment}", *overrides,
+                   f"hydra.sweep.dir={sweep_dir}"]
+            if cache_dir is not None:
+                cmd.append(f"paths.cache_dir={cache_dir}")
+            cmds.append(cmd)
+        return cmds
 
 
 @dataclass
@@ -93,19 +103,30 @@ def load_plan(path: Path) -> Plan:
         where = f"plan {path}: tables.{name}"
         if not isinstance(entry, dict):
             raise PlanError(f"{where}: expected a mapping with 'experiment'")
-        unknown = set(entry) - {"experiment", "overrides", "description"}
+        unknown = set(entry) - {"experiment", "overrides", "sweeps", "description"}
         if unknown:
-            raise PlanError(f"{where}: unknown key(s) {sorted(unknown)} (allowed: experiment, overrides, description)")
+            raise PlanError(f"{where}: unknown key(s) {sorted(unknown)} "
+                            "(allowed: experiment, overrides, sweeps, description)")
         exp = entry.get("experiment")
         if exp not in experiments:
             raise PlanError(f"{where}.experiment: {exp!r} is not in conf/experiment ({sorted(experiments)})")
-        overrides = entry.get("overrides") or []
-        if not isinstance(overrides, list) or not all(isinstance(o, str) for o in overrides):
-            raise PlanError(f"{where}.overrides: expected a list of strings")
-        for o in overrides:
-            if o.startswith(("hydra.sweep.dir", "paths.cache_dir", "experiment=")):
-                raise PlanError(f"{where}.overrides: {o!r} is set by the driver")
-        tables.append(TablePlan(str(name), exp, tuple(overrides), str(entry.get("description", ""))))
+        if "overrides" in entry and "sweeps" in entry:
+            raise PlanError(f"{where}: give 'overrides' (one multirun) or 'sweeps' (several), not both")
+        if "sweeps" in entry:
+            sweeps, field_name = entry["sweeps"], "sweeps"
+            if not isinstance(sweeps, list) or not sweeps:
+                raise PlanError(f"{where}.sweeps: expected a non-empty list of override lists")
+        else:
+            sweeps, field_name = [entry.get("overrides") or []], "overrides"
+        for i, overrides in enumerate(sweeps):
+            at = f"{where}.{field_name}" + (f"[{i}]" if field_name == "sweeps" else "")
+            if not isinstance(overrides, list) or not all(isinstance(o, str) for o in overrides):
+                raise PlanError(f"{at}: expected a list of strings")
+            for o in overrides:
+                if o.startswith(("hydra.sweep.dir", "paths.cache_dir", "experiment=")):
+                    raise PlanError(f"{at}: {o!r} is set by the driver")
+        tables.append(TablePlan(str(name), exp, tuple(tuple(o) for o in sweeps),
+                                str(entry.get("description", ""))))
     return Plan(Path(path).stem, tables)
 
 
@@ -120,44 +141,45 @@ def _commit() -> str:
         return "unknown"
 
 
-def _done(sweep_dir: Path, command: list[str]) -> dict[str, Any] | None:
-    """The finished-table record if this command already completed here."""
-    path = sweep_dir / DONE_FILE
+def _done(table_dir: Path, commands: list[list[str]]) -> dict[str, Any] | None:
+    """The finished-table record if these commands already completed here."""
+    path = table_dir / DONE_FILE
     try:
         data = json.loads(path.read_text())
     except (FileNotFoundError, json.JSONDecodeError):
         return None
-    return data if data.get("command") == command[1:] else None
+    return data if data.get("commands") == [c[1:] for c in commands] else None
 
 
 def run_table(table: TablePlan, out: Path, cache_dir: Path | None, force: bool = False) -> dict[str, Any]:
     """Run one table's multirun (unless already done), then write its tables; its record."""
     from experiments.tables import write_tables
 
-    sweep_dir = out / "runs" / table.name
-    command = table.command(sweep_dir, cache_dir)
-    record = None if force else _done(sweep_dir, command)
+    table_dir = out / "runs" / table.name
+    commands = table.commands(table_dir, cache_dir)
+    record = None if force else _done(table_dir, commands)
     if record is not None:
         log.info("%s: already done (%.0f s when it ran); skipped", table.name, record["seconds"])
         return {**record, "reused": True}
     log_path = out / "logs" / f"{table.name}.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
-    log.info("%s: running %s (log: %s)", table.name, shlex.join(command[1:]), log_path)
     start = time.perf_counter()
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")])}
-    with open(log_path, "a") as fh:
-        fh.write(f"\n$ {shlex.join(command)}\n")
-        fh.flush()
-        proc = subprocess.run(command, cwd=REPO_ROOT, stdout=fh, stderr=subprocess.STDOUT, env=env)
+    for command in commands:
+        log.info("%s: running %s (log: %s)", table.name, shlex.join(command[1:]), log_path)
+        with open(log_path, "a") as fh:
+            fh.write(f"\n$ {shlex.join(command)}\n")
+            fh.flush()
+            proc = subprocess.run(command, cwd=REPO_ROOT, stdout=fh, stderr=subprocess.STDOUT, env=env)
+        if proc.returncode != 0:
+            raise RuntimeError(f"table {table.name}: run.py exited with {proc.returncode} after "
+                               f"{time.perf_counter() - start:.0f} s; see {log_path}")
     seconds = time.perf_counter() - start
-    if proc.returncode != 0:
-        raise RuntimeError(f"table {table.name}: run.py exited with {proc.returncode} after {seconds:.0f} s; "
-                           f"see {log_path}")
-    _md, written = write_tables(sweep_dir, out / "tables" / table.name)
-    record = {"table": table.name, "experiment": table.experiment, "command": command[1:],
+    _md, written = write_tables(table_dir, out / "tables" / table.name)
+    record = {"table": table.name, "experiment": table.experiment, "commands": [c[1:] for c in commands],
               "commit": _commit(), "seconds": seconds, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
               "outputs": [str(p.relative_to(out)) for p in written]}
-    write_json_atomic(sweep_dir / DONE_FILE, record)
+    write_json_atomic(table_dir / DONE_FILE, record)
     log.info("%s: done in %.0f s", table.name, seconds)
     return {**record, "reused": False}
 
@@ -175,7 +197,7 @@ def summary_markdown(plan: Plan, records: Sequence[dict[str, Any]], out: Path) -
         lines += [f"## {table.name}", ""]
         if table.description:
             lines += [table.description, ""]
-        lines += ["```", "python " + shlex.join(r["command"]), "```", ""]
+        lines += ["```", *("python " + shlex.join(c) for c in r["commands"]), "```", ""]
         for md in sorted((out / "tables" / table.name).glob("*.md")):
             lines.append(md.read_text())
         for png in sorted((out / "tables" / table.name).glob("*.png")):
@@ -226,7 +248,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.dry_run:
             for t in plan.tables:
                 if not args.only or t.name in args.only:
-                    print(shlex.join(["python", *t.command(out / "runs" / t.name, cache)[1:]]))
+                    for cmd in t.commands(out / "runs" / t.name, cache):
+                        print(shlex.join(["python", *cmd[1:]]))
             return 0
         records = reproduce(plan, out, cache, only=args.only, force=args.force)
     except (PlanError, RuntimeError, FileNotFoundError, ValueError) as exc:

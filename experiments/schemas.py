@@ -32,6 +32,8 @@ class DataConfig:
 
     train_episodes_per_task: int = 4  # expert-segmented: policy training set and sub-task database
     val_episodes_per_task: int = 3  # M: demonstrations decomposed to finetune the planner
+    # Index of the first of those M validation demos: abl_demos's disjoint single-demo sets (0, 1, 2).
+    val_first_episode: int = 0
     pretrain_episodes_per_task: int = 4  # base planner pretraining (pretraining tasks only)
     # Tasks the base planner is pretrained on; null = the env's pretraining tasks (never evaluated).
     pretrain_tasks: list[str] | None = None

@@ -33,6 +33,9 @@ def test_shipped_plans_load_and_name_real_experiments():
         ("tables: {}", "non-empty mapping under 'tables'"),
         ("tables: {a: {experiment: no_such}}", "tables.a.experiment: 'no_such' is not in conf/experiment"),
         ("tables: {a: {experiment: smoke, sweep: 1}}", "tables.a: unknown key(s) ['sweep']"),
+        ("tables: {a: {experiment: smoke, overrides: [], sweeps: [[]]}}", "not both"),
+        ("tables: {a: {experiment: smoke, sweeps: []}}", "tables.a.sweeps: expected a non-empty list"),
+        ("tables: {a: {experiment: smoke, sweeps: [[seed=1], seed=2]}}", "tables.a.sweeps[1]: expected a list"),
         ("tables: {a: {experiment: smoke, overrides: [paths.cache_dir=/x]}}", "set by the driver"),
         ("tables: {a: {experiment: smoke, overrides: seed=1}}", "tables.a.overrides: expected a list"),
         ("tables: [", "not valid YAML"),
@@ -51,6 +54,19 @@ def test_cli_errors_are_one_line(tmp_path: Path, capsys):
     assert err.count("\n") == 0 and "nope.yaml" in err and "scales:" in err
     assert main(["--scale", "smoke", "--only", "missing", "--out", str(tmp_path)]) == 2
     assert "missing" in capsys.readouterr().err
+
+
+def test_several_sweeps_share_one_table_folder(tmp_path: Path):
+    plan = tmp_path / "p.yaml"
+    plan.write_text("tables: {demos: {experiment: abl_demos, sweeps: "
+                    "[[decomposer=rdd], [data.val_episodes_per_task=1, 'data.val_first_episode=0,1,2']]}}")
+    (table,) = load_plan(plan).tables
+    cmds = table.commands(tmp_path / "runs" / "demos", None)
+    assert [c[-1] for c in cmds] == [f"hydra.sweep.dir={tmp_path}/runs/demos/part0",
+                                     f"hydra.sweep.dir={tmp_path}/runs/demos/part1"]
+    assert cmds[1][3:6] == ["experiment=abl_demos", "data.val_episodes_per_task=1", "data.val_first_episode=0,1,2"]
+    paper = {t.name: t for t in load_plan(PLANS_DIR / "default.yaml").tables}["abl_demos"]
+    assert len(paper.sweeps) == 2
 
 
 def test_dry_run_prints_one_multirun_per_table(capsys):
