@@ -210,7 +210,8 @@ def train_policy(policy_cfg: DictConfig, episodes, labeler, text_cache: Path, ou
         got = [labeler.label(ep, tuple(s)) for s in ep.segments]
         if got != list(ep.instructions):
             raise RuntimeError(f"labeler is not deterministic on {ep.name}: {got} != {ep.instructions}")
-    policy = train(episodes=eps, labeler=labeler, out_dir=out, embedder=shared_embedder(text_cache))
+    policy = train(episodes=eps, labeler=labeler, out_dir=out, embedder=shared_embedder(text_cache),
+                   progress=progress_enabled())
     cls = type(policy)
     write_json_atomic(out / POLICY_FILE, {"checkpoint": _relative(policy.checkpoint, out),
                                           "class": f"{cls.__module__}.{cls.__qualname__}"})

@@ -190,12 +190,13 @@ def validate_config(cfg: DictConfig, schema: type | None = None,
     components = COMPONENT_GROUPS if components is None else components
     fields = {f.name for f in dataclasses.fields(schema)}
     hints = typing.get_type_hints(schema)
-    for key in cfg:
-        if key == "hydra":
-            continue
+    keys = [k for k in cfg if k != "hydra"]
+    for key in keys:  # unknown keys first: no component module needs importing to report them
         if key not in fields:
             raise ConfigError(f"{key}: unknown key (given {_fmt(_raw(cfg, key))}); the config's keys are "
                               f"{sorted(fields)}")
+    # the run's own keys before the components (whose targets import torch and friends)
+    for key in sorted(keys, key=lambda k: k in components):
         value = _raw(cfg, key)
         if key in components:
             if _is_component(value):

@@ -123,7 +123,8 @@ CHECKPOINT_FILE = "keyframe_policy.pt"
 def train_policy(episodes: Sequence[Episode], labeler: Labeler, out_dir: str | os.PathLike, *,
                  net: NetConfig | None = None, train: TrainConfig | None = None,
                  data: DatasetConfig | None = None,
-                 embedder: InstructionEmbedder | None = None) -> KeyframeBCPolicy:
+                 embedder: InstructionEmbedder | None = None,
+                 progress: bool = False) -> KeyframeBCPolicy:
     """Train on ``episodes`` and save the network (``keyframe_policy.pt`` + ``.json``) into ``out_dir``.
 
     The factory ``conf/policy/keyframe_bc.yaml`` names: its options are ``net``, ``train`` and
@@ -134,7 +135,7 @@ def train_policy(episodes: Sequence[Episode], labeler: Labeler, out_dir: str | o
     out_dir = Path(out_dir)
     embedder = embedder or shared_embedder(None)
     data = build_dataset(episodes, labeler, embedder, cfg.data)
-    net, stats = train_network(data, cfg.net, cfg.train)
+    net, stats = train_network(data, cfg.net, cfg.train, progress=progress)
     meta = {"stats": stats, "config": _jsonable(asdict(cfg)), "instructions": data.instr_texts,
             "anchor_names": data.name_texts}
     path = out_dir / CHECKPOINT_FILE

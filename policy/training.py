@@ -6,12 +6,14 @@ import hashlib
 import json
 import logging
 import math
+import sys
 import time
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from policy.network import KeyframeNet, NetConfig, gripper_equivalent
 from rdd.atomic import atomic_file
@@ -80,8 +82,9 @@ class TrainConfig:
     anneal_fraction: float = 0.5  # share of the epochs spent annealing
 
 
-def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainConfig) -> tuple[KeyframeNet, dict]:
-    """Fit a :class:`KeyframeNet` to ``data``; returns the model and a stats dict."""
+def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainConfig,
+                  progress: bool = False) -> tuple[KeyframeNet, dict]:
+    """Fit a :class:`KeyframeNet` to ``data``; returns the model and a stats dict (``progress``: a bar)."""
     if len(data) == 0:
         raise ValueError("cannot train the keyframe policy on an empty dataset")
     torch.manual_seed(train_cfg.seed)
@@ -101,7 +104,8 @@ def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainCon
         stopped_early = False
         step = 0
         progress = 0.0
-        for epoch in range(epochs):
+        for epoch in tqdm(range(epochs), desc="policy", unit="epoch", leave=False, file=sys.stderr,
+                          disable=not progress, dynamic_ncols=True):
             perm = torch.randperm(n, generator=gen)
             total, seen = 0.0, 0
             for b in range(steps_per_epoch):

@@ -109,3 +109,23 @@ def test_every_stage_key_covers_its_code(tmp_path: Path):
     recorded = json.loads((path / "spec.json").read_text())
     assert recorded["code"] == stage_code_key("planner_base")
     assert key == spec_key({"a": 1, "code": stage_code_key("planner_base")}) != spec_key({"a": 1})
+
+
+def test_one_line_per_stage_says_built_or_reused(tmp_path: Path):
+    from experiments.logs import stage_lines
+
+    cache = StageCache(tmp_path)
+    for task in ("a", "b"):
+        cache.get_or_build("labels", {"task": task}, lambda d: (d / "x").write_text("1"))
+    cache.get_or_build("policy", {"p": 1}, lambda d: (d / "x").write_text("1"))
+    first = stage_lines(cache.timings)
+    assert [line.split()[1:3] for line in first] == [["labels", "built"], ["policy", "built"]]
+
+    again = StageCache(tmp_path)
+    again.get_or_build("labels", {"task": "a"}, lambda d: None)   # cached
+    again.get_or_build("labels", {"task": "c"}, lambda d: (d / "x").write_text("1"))  # new
+    again.get_or_build("policy", {"p": 1}, lambda d: None)
+    lines = stage_lines(again.timings)
+    assert len(lines) == 2
+    assert "built 1, reused 1" in lines[0] and lines[0].split()[1] == "labels"
+    assert lines[1].split()[1:3] == ["policy", "reused"] and lines[1].endswith(" s")
