@@ -3,8 +3,9 @@
 The primary config (``conf/config.yaml``) starts its defaults list with ``base_config`` (the
 ``RunConfig`` dataclass below), so a misspelt or mistyped top-level key
 (``sed=1``, ``eval.episodes_per_task=many``, ``mode=trian``) fails when Hydra composes the config,
-before any work starts. The component groups (decomposer, encoder, ...) are ``_target_`` nodes whose
-fields are checked against their target's signature by ``experiments.instantiate.check_component``.
+before any work starts. Keys added with ``+`` and the component groups (decomposer, encoder, ...),
+which are ``_target_`` nodes, are checked by ``experiments.validate.validate_config`` (keys against
+the target's signature, values against its type hints) before any stage runs.
 """
 
 from __future__ import annotations
