@@ -1,7 +1,8 @@
 """The project's one way to write a file or a folder: all of it, or nothing.
 
 Every writer (CLI outputs, databases, caches, stage outputs, checkpoints, plots, tables) goes
-through :func:`atomic_file` or :func:`atomic_dir`: the data is written to a uniquely named
+through :func:`atomic_file`, :func:`atomic_path` (for writers that need a file name) or
+:func:`atomic_dir`: the data is written to a uniquely named
 temporary sibling in the target folder, flushed to disk (``fsync``), and renamed into place, so a
 crash or Ctrl-C leaves either the old file or the new one, never half of one, and two writers never
 share a temporary name. Files get the permissions an ordinary ``open()`` would give them under the
@@ -23,6 +24,7 @@ __all__ = [
     "TargetExistsError",
     "atomic_dir",
     "atomic_file",
+    "atomic_path",
     "write_bytes_atomic",
     "write_json_atomic",
     "write_text_atomic",
@@ -54,25 +56,27 @@ def _check_target(path: Path, overwrite: bool) -> None:
 
 
 @contextlib.contextmanager
-def atomic_file(path: str | os.PathLike, mode: str = "wb", *, overwrite: bool = True) -> Iterator[IO]:
-    """Open a temporary file beside ``path`` for writing; on success it is fsynced and renamed to ``path``.
+def atomic_path(path: str | os.PathLike, *, overwrite: bool = True) -> Iterator[Path]:
+    """Yield a fresh temporary file name beside ``path`` (same suffix) for writers that need a name
+    (C libraries, figure savers); on success that file is fsynced and renamed to ``path``.
 
     With ``overwrite=False`` an existing ``path`` raises :class:`TargetExistsError` and is kept (the
-    final rename is a hard link then, so a concurrent writer that got there first still wins alone).
+    final step is a hard link then, so a concurrent writer that got there first still wins alone).
     """
-    if "w" not in mode:
-        raise ValueError(f"atomic_file writes whole files: mode must contain 'w', got {mode!r}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     _check_target(path, overwrite)
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}")
     tmp = Path(tmp_name)
     try:
         os.fchmod(fd, 0o666 & ~_umask())
-        with os.fdopen(fd, mode) as fh:
-            yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
+        os.close(fd)
+        yield tmp
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         if overwrite:
             os.replace(tmp, path)
         else:
@@ -80,10 +84,21 @@ def atomic_file(path: str | os.PathLike, mode: str = "wb", *, overwrite: bool = 
                 os.link(tmp, path)  # fails if path appeared meanwhile: no silent replacement
             except FileExistsError as exc:
                 raise TargetExistsError(f"{path} already exists (refusing to replace it)") from exc
-            tmp.unlink()
         _fsync_dir(path.parent)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | os.PathLike, mode: str = "wb", *, overwrite: bool = True) -> Iterator[IO]:
+    """Open a temporary file beside ``path`` for writing; on success it is fsynced and renamed to ``path``.
+
+    ``overwrite=False`` behaves as in :func:`atomic_path`.
+    """
+    if "w" not in mode:
+        raise ValueError(f"atomic_file writes whole files: mode must contain 'w', got {mode!r}")
+    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, mode) as fh:
+        yield fh
 
 
 def write_bytes_atomic(path: str | os.PathLike, data: bytes, *, overwrite: bool = True) -> Path:

@@ -12,10 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import re
-import shutil
-import tempfile
 import zipfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -23,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from rdd.atomic import atomic_dir
 from rdd.data.episode import Episode
 from rdd.data.frames import update_with_file
 
@@ -192,9 +190,9 @@ def save_episode(
         "instructions": None if episode.instructions is None else [str(i) for i in episode.instructions],
         "meta": _jsonable_meta(episode.meta, episode.name),
     }
-    directory.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.tmp-", dir=directory.parent))
-    try:
+    # The whole episode folder appears (or replaces the old one) in one rename: a reader never
+    # sees a half-written episode.
+    with atomic_dir(directory, overwrite=True) as tmp:
         for view in episode.views:
             frames = np.ascontiguousarray(episode.frames(view))
             write_npz(tmp / frames_file(view), {"frames": frames})
@@ -207,17 +205,6 @@ def save_episode(
         if priv:
             write_npz(tmp / PRIVILEGED_FILE, priv)
         (tmp / EPISODE_FILE).write_text(json.dumps(header, indent=1))
-        if directory.exists():
-            # Swap in two renames so a reader never sees a half-written episode.
-            old = Path(tempfile.mkdtemp(prefix=f".{directory.name}.old-", dir=directory.parent))
-            os.replace(directory, old / "ep")
-            os.replace(tmp, directory)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, directory)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return directory
 
 

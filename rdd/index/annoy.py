@@ -7,12 +7,11 @@ query inspects ``n_trees * N`` nodes (all trees). Queries run one at a time (Ann
 from __future__ import annotations
 
 import hashlib
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from rdd.atomic import atomic_path
 from rdd.index.base import NearestIndex, interval_matrix
 
 
@@ -62,11 +61,8 @@ class AnnoyBackend(NearestIndex):
             index.add_item(i, row.tolist())
         index.build(self.n_trees, n_jobs=1)
         if cache_dir is not None:
-            cache_dir.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=cache_dir, suffix=".ann.tmp")
-            os.close(fd)
-            index.save(tmp)
-            os.replace(tmp, cache_dir / fname)
+            with atomic_path(cache_dir / fname) as tmp:
+                index.save(str(tmp))
             # save() leaves the index memory-mapped from tmp; reload from the final name.
             index = annoy_index(dim, "angular")
             index.load(str(cache_dir / fname))
