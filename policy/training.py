@@ -75,9 +75,10 @@ class TrainConfig:
     weight_decay: float = 1e-4
     seed: int = 0
     threads: int = 1
-    # Time budget: past it the schedule is compressed to finish in time (the result then depends
-    # on machine speed; stats record steps run vs planned).
-    max_seconds: float = 540.0
+    # Optional time budget: past it the schedule is compressed to finish in time. Off by default:
+    # with it the trained policy (and every figure after it) depends on how loaded the machine was,
+    # which its cache key cannot see. Stats record steps run vs planned.
+    max_seconds: float | None = None
     sigma_start: float = 0.2  # metres; the mixture width anneals from here to NetConfig.pos_sigma
     anneal_fraction: float = 0.5  # share of the epochs spent annealing
 
@@ -103,7 +104,7 @@ def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainCon
         history: list[float] = []
         stopped_early = False
         step = 0
-        progress = 0.0
+        done = 0.0  # fraction of the schedule, from steps (or time, under max_seconds)
         for epoch in tqdm(range(epochs), desc="policy", unit="epoch", leave=False, file=sys.stderr,
                           disable=not progress, dynamic_ncols=True):
             perm = torch.randperm(n, generator=gen)
@@ -111,13 +112,14 @@ def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainCon
             for b in range(steps_per_epoch):
                 # Progress is the larger of the step and the time fractions, so when max_seconds
                 # binds the schedule (warm-up, cosine decay, sigma annealing) still completes.
-                elapsed = time.perf_counter() - start
-                progress = max(step / total_steps, elapsed / train_cfg.max_seconds)
-                if progress >= 1.0:
+                done = step / total_steps
+                if train_cfg.max_seconds is not None:
+                    done = max(done, (time.perf_counter() - start) / train_cfg.max_seconds)
+                if done >= 1.0:
                     break
                 for group in opt.param_groups:
-                    group["lr"] = _lr(train_cfg.lr, progress)
-                frac = min(1.0, progress / max(train_cfg.anneal_fraction, 1e-6))
+                    group["lr"] = _lr(train_cfg.lr, done)
+                frac = min(1.0, done / max(train_cfg.anneal_fraction, 1e-6))
                 sigma = train_cfg.sigma_start * (net_cfg.pos_sigma / train_cfg.sigma_start) ** frac
                 idx = perm[b * train_cfg.batch_size:(b + 1) * train_cfg.batch_size]
                 pred = net.forward_indexed(*_inputs(t, idx))
@@ -133,7 +135,7 @@ def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainCon
             if seen:
                 history.append(total / seen)
                 log.debug("policy epoch %d/%d loss %.4f", epoch + 1, epochs, history[-1])
-            if progress >= 1.0 and step < total_steps:
+            if done >= 1.0 and step < total_steps:
                 stopped_early = True
                 log.warning("policy training compressed into max_seconds: %d of %d steps", step, total_steps)
                 break

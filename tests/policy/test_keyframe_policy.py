@@ -81,3 +81,18 @@ def test_trained_policy_is_saved_into_its_output_folder(trained):
     obs = observation_at(episodes[1], 0)
     assert np.allclose(again.act(obs, "grasp the green block").to_array(),
                        policy.act(obs, "grasp the green block").to_array())
+
+
+def test_training_runs_its_whole_schedule_and_repeats_exactly(trained, tmp_path):
+    """No time budget by default: two trainings of the same data and config give the same network."""
+    _, episodes, _, _ = trained
+    import torch
+
+    assert TrainConfig().max_seconds is None
+    cfg = TrainConfig(epochs=1, min_steps=40, batch_size=64)
+    runs = [train_policy(episodes[:2], PrivilegedLabeler(), tmp_path / f"run{i}", train=cfg,
+                         data=DatasetConfig(frames_per_segment=2)) for i in range(2)]
+    stats = [r.meta["stats"] for r in runs]
+    assert all(s["steps"] == s["planned_steps"] and not s["stopped_early"] for s in stats)
+    a, b = (r.net.state_dict() for r in runs)
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
