@@ -163,6 +163,7 @@ def run_table(table: TablePlan, out: Path, cache_dir: Path | None, force: bool =
         return {**record, "reused": True}
     log_path = out / "logs" / f"{table.name}.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
+    commit = _commit()  # the code the table starts from (a commit landing mid-run is not its code)
     start = time.perf_counter()
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")])}
     for command in commands:
@@ -177,7 +178,7 @@ def run_table(table: TablePlan, out: Path, cache_dir: Path | None, force: bool =
     seconds = time.perf_counter() - start
     _md, written = write_tables(table_dir, out / "tables" / table.name)
     record = {"table": table.name, "experiment": table.experiment, "commands": [c[1:] for c in commands],
-              "commit": _commit(), "seconds": seconds, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+              "commit": commit, "seconds": seconds, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
               "outputs": [str(p.relative_to(out)) for p in written]}
     write_json_atomic(table_dir / DONE_FILE, record)
     log.info("%s: done in %.0f s", table.name, seconds)

@@ -256,7 +256,8 @@ def miou_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     n_demos = sorted({int(r.data["decomposition"].get("num_demos", 0)) for r in runs})
     note = (f"mIoU (%) of each decomposition against the expert keyframe segmentation on "
             f"{'/'.join(map(str, n_demos))} validation demonstration(s); ± is the sample std over seeds."
-            + (" s / demo: mean wall time of one decomposition." if with_time else "")
+            + (" s / demo: mean wall time of one decomposition, encoding the demo's frames included"
+               " when no earlier job had cached them." if with_time else "")
             + (" novelty Δ: mean ± std over demos of RDD's novelty score (paper Eq. 3.6)." if with_novelty else ""))
     return Table(title, header, rows, bold, note)
 
