@@ -37,29 +37,28 @@ LANGUAGE_FEATURE = {"dtype": "language", "shape": [1], "names": None}
 SUBTASK_STYLE = "subtask"
 
 
-def persistent_type():
-    """Arrow type of ``language_persistent`` (LeRobot's canonical type with JSON stored as string)."""
+def _message_list_type(with_timestamp: bool):
+    """A list of LeRobot message rows; the two language columns differ only in the timestamp field."""
     pa = _need("pyarrow")
-    return pa.list_(pa.struct([
+    fields = [
         pa.field("role", pa.string(), nullable=False),
         pa.field("content", pa.string()),
         pa.field("style", pa.string()),
-        pa.field("timestamp", pa.float32(), nullable=False),
+        *([pa.field("timestamp", pa.float32(), nullable=False)] if with_timestamp else []),
         pa.field("camera", pa.string()),
         pa.field("tool_calls", pa.list_(pa.string())),
-    ]))
+    ]
+    return pa.list_(pa.struct(fields))
+
+
+def persistent_type():
+    """Arrow type of ``language_persistent`` (LeRobot's canonical type with JSON stored as string)."""
+    return _message_list_type(with_timestamp=True)
 
 
 def events_type():
     """Arrow type of ``language_events`` (rows carry no timestamp: they sit on their frame)."""
-    pa = _need("pyarrow")
-    return pa.list_(pa.struct([
-        pa.field("role", pa.string(), nullable=False),
-        pa.field("content", pa.string()),
-        pa.field("style", pa.string()),
-        pa.field("camera", pa.string()),
-        pa.field("tool_calls", pa.list_(pa.string())),
-    ]))
+    return _message_list_type(with_timestamp=False)
 
 
 def subtask_rows(segments: Sequence[Segment], instructions: Sequence[str], timestamps: np.ndarray,
