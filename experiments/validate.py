@@ -23,7 +23,7 @@ from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-HYDRA_KEYS = {"_target_", "_partial_", "_recursive_", "_convert_", "_args_"}
+from experiments.instantiate import HYDRA_KEYS, target_callable
 
 
 class ConfigError(ValueError):
@@ -157,8 +157,6 @@ def _raw(node: DictConfig, key: Any) -> Any:
 
 def check_component_node(path: str, node: DictConfig) -> None:
     """A ``_target_`` node: its target imports, every key is a parameter of it, of the hinted type."""
-    from experiments.instantiate import target_callable
-
     try:
         fn = target_callable(node, path)
     except (ImportError, ValueError) as exc:
