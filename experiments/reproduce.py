@@ -59,12 +59,12 @@ class TablePlan:
         return [table_dir / f"part{i}" for i in range(len(self.sweeps))]
 
     def commands(self, table_dir: Path, cache_dir: Path | None) -> list[list[str]]:
-        """The ``run.py`` command line of each of this table's multiruns."""
+        """The ``run.py`` arguments of each of this table's multiruns (the interpreter is prepended to run)."""
         cmds = []
         for overrides, sweep_dir in zip(self.sweeps, self.sweep_dirs(table_dir), strict=True):
             # run.py relative to the repository root (the child's working directory), so the
             # recorded command is the one a reader types.
-            cmd = [sys.executable, "run.py", "-m", f"experiment={self.experiment}", *overrides,
+            cmd = ["run.py", "-m", f"experiment={self.experiment}", *overrides,
                    f"hydra.sweep.dir={sweep_dir}"]
             if cache_dir is not None:
                 cmd.append(f"paths.cache_dir={cache_dir}")
@@ -148,7 +148,7 @@ def _done(table_dir: Path, commands: list[list[str]]) -> dict[str, Any] | None:
         data = json.loads(path.read_text())
     except (FileNotFoundError, json.JSONDecodeError):
         return None
-    return data if data.get("commands") == [c[1:] for c in commands] else None
+    return data if data.get("commands") == commands else None
 
 
 def run_table(table: TablePlan, out: Path, cache_dir: Path | None, force: bool = False) -> dict[str, Any]:
@@ -167,17 +167,17 @@ def run_table(table: TablePlan, out: Path, cache_dir: Path | None, force: bool =
     start = time.perf_counter()
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")])}
     for command in commands:
-        log.info("%s: running %s (log: %s)", table.name, shlex.join(command[1:]), log_path)
+        log.info("%s: running %s (log: %s)", table.name, shlex.join(command), log_path)
         with open(log_path, "a") as fh:
-            fh.write(f"\n$ {shlex.join(command)}\n")
+            fh.write(f"\n$ python {shlex.join(command)}\n")
             fh.flush()
-            proc = subprocess.run(command, cwd=REPO_ROOT, stdout=fh, stderr=subprocess.STDOUT, env=env)
+            proc = subprocess.run([sys.executable, *command], cwd=REPO_ROOT, stdout=fh, stderr=subprocess.STDOUT, env=env)
         if proc.returncode != 0:
             raise RuntimeError(f"table {table.name}: run.py exited with {proc.returncode} after "
                                f"{time.perf_counter() - start:.0f} s; see {log_path}")
     seconds = time.perf_counter() - start
     _md, written = write_tables(table_dir, out / "tables" / table.name)
-    record = {"table": table.name, "experiment": table.experiment, "commands": [c[1:] for c in commands],
+    record = {"table": table.name, "experiment": table.experiment, "commands": commands,
               "commit": commit, "seconds": seconds, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
               "outputs": [str(p.relative_to(out)) for p in written]}
     write_json_atomic(table_dir / DONE_FILE, record)
@@ -250,7 +250,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             for t in plan.tables:
                 if not args.only or t.name in args.only:
                     for cmd in t.commands(out / "runs" / t.name, cache):
-                        print(shlex.join(["python", *cmd[1:]]))
+                        print(shlex.join(["python", *cmd]))
             return 0
         records = reproduce(plan, out, cache, only=args.only, force=args.force)
     except (PlanError, RuntimeError, FileNotFoundError, ValueError) as exc:

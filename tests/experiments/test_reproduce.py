@@ -64,7 +64,7 @@ def test_several_sweeps_share_one_table_folder(tmp_path: Path):
     cmds = table.commands(tmp_path / "runs" / "demos", None)
     assert [c[-1] for c in cmds] == [f"hydra.sweep.dir={tmp_path}/runs/demos/part0",
                                      f"hydra.sweep.dir={tmp_path}/runs/demos/part1"]
-    assert cmds[1][3:6] == ["experiment=abl_demos", "data.val_episodes_per_task=1", "data.val_first_episode=0,1,2"]
+    assert cmds[1][2:5] == ["experiment=abl_demos", "data.val_episodes_per_task=1", "data.val_first_episode=0,1,2"]
     paper = {t.name: t for t in load_plan(PLANS_DIR / "default.yaml").tables}["abl_demos"]
     assert len(paper.sweeps) == 2
 
