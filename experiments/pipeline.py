@@ -186,8 +186,6 @@ class Run:
         with self.cache.lock("demos", f"{env_key}-{task}-{split}"), \
                 self.cache.timed("episodes") as timing:
             before = set(root.glob(f"{split}/{task}/*/episode.json"))
-            if first < 0:
-                raise ValueError(f"data.val_first_episode must be >= 0, got {first}")
             dirs = comp.episodes_for(self.cfg.env, task, split, first + count, root)[first:]
             timing["cached"] = all(d / "episode.json" in before for d in dirs)
         out = []
@@ -326,14 +324,21 @@ class Run:
             parts["views"] = self.views
         return parts
 
+    def val_window(self) -> tuple[int, int]:
+        """(M, first): the validation demos ``first .. first+M-1`` the planner is finetuned on."""
+        m, first = int(self.cfg.data.val_episodes_per_task), int(self.cfg.data.val_first_episode)
+        if first < 0:
+            raise ValueError(f"data.val_first_episode must be >= 0, got {first}")
+        return m, first
+
     def decompositions(self, tasks: list[str]) -> tuple[list[dict[str, Any]], str]:
         """Decompose and label the M validation demos of each task; rows + key."""
-        m = int(self.cfg.data.val_episodes_per_task)
+        m, first = self.val_window()
         parts = {**self.runtime_key_parts("decomposer"), **self.runtime_key_parts("labeler")}
         rows: list[dict[str, Any]] = []
         keys = []
         for task in tasks:
-            episodes, expert_key = self.expert_labels(task, "val", m, int(self.cfg.data.val_first_episode))
+            episodes, expert_key = self.expert_labels(task, "val", m, first)
             spec = {"demos": expert_key, **parts}
 
             def build(tmp: Path, episodes=episodes, task=task) -> None:
@@ -389,9 +394,7 @@ class Run:
             return base_dir, None, base_key, info
         rows, dec_key = self.decompositions(self.eval_tasks)
         info["decompositions"] = rows
-        episodes = {e.name: e for t in self.eval_tasks
-                    for e in self.episodes(t, "val", int(self.cfg.data.val_episodes_per_task),
-                                           int(self.cfg.data.val_first_episode))}
+        episodes = {e.name: e for t in self.eval_tasks for e in self.episodes(t, "val", *self.val_window())}
         # the validation demos as the decomposer cut them and the labeller named the pieces
         eps = [with_segments(episodes[r["episode"]], r["segments"], r["instructions"]) for r in rows]
         spec = {"planner": self.node("planner"), "base": base_key, "decompositions": dec_key,
