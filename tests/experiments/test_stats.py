@@ -2,15 +2,10 @@
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-from experiments.results import RESULTS_FORMAT, per_task_success
 from experiments.stats import episode_outcomes, paired_difference, stratified_bootstrap_mean
-from experiments.tables import write_tables
 
 
 def test_two_values_interval_is_the_whole_range():
@@ -44,28 +39,3 @@ def test_differing_episode_sets_are_refused():
         paired_difference("a", {(0, "t", 1): 1.0}, "b", {(0, "t", 2): 1.0})
     with pytest.raises(ValueError, match="twice"):
         episode_outcomes({0: [{"task": "t", "seed": 1, "success": True}] * 2})
-
-
-def _write(root: Path, name: str, method: str, seed: int, success: dict[str, list[bool]]) -> None:
-    episodes = [{"task": t, "seed": 100 + i, "success": s, "steps": 1, "instructions": []}
-                for t, outs in success.items() for i, s in enumerate(outs)]
-    data = {"format": RESULTS_FORMAT, "status": "ok", "seed": seed,
-            "choices": {"experiment": "table_main", "decomposer": method},
-            "overrides": [f"decomposer={method}", f"seed={seed}"],
-            "episodes": episodes, "per_task": per_task_success(episodes)}
-    (root / name).mkdir(parents=True)
-    (root / name / "results.json").write_text(json.dumps(data))
-
-
-def test_paired_table_in_written_tables(tmp_path: Path):
-    # rdd succeeds everywhere; uvd fails everywhere on seed 0 and 1 (4 paired episodes): -100 [-100, -100].
-    # expert equals rdd: +0.0 [+0.0, +0.0], not significant.
-    for seed in (0, 1):
-        _write(tmp_path, f"r{seed}", "rdd", seed, {"t1": [True], "t2": [True]})
-        _write(tmp_path, f"u{seed}", "uvd", seed, {"t1": [False], "t2": [False]})
-        _write(tmp_path, f"e{seed}", "expert", seed, {"t1": [True], "t2": [True]})
-    md, _ = write_tables(tmp_path, tmp_path / "out")
-    rows = {line.split(" | ")[0].strip("| *"): line for line in md.split("paired differences")[1].splitlines()
-            if line.startswith("| ")}
-    assert "-100.0 | [-100.0, -100.0] | **yes** | 4" in rows["uvd"]
-    assert "+0.0 | [+0.0, +0.0] | no | 4" in rows["expert"]

@@ -140,3 +140,17 @@ def test_miou_table_time_and_novelty_columns(tmp_path: Path):
     assert "s / demo" in lines["Method"] and "novelty Δ" in lines["Method"]
     assert lines["rdd"].rstrip(" |").endswith("0.300 | 0.200 ± 0.141")
     assert lines["uniform"].rstrip(" |").endswith("0.010 | –")
+
+
+def test_paired_table_in_written_tables(tmp_path: Path):
+    # rdd succeeds everywhere; uvd fails everywhere on seed 0 and 1 (4 paired episodes): -100 [-100, -100].
+    # expert equals rdd: +0.0 [+0.0, +0.0], not significant.
+    for seed in (0, 1):
+        _write_run(tmp_path, f"r{seed}", "rdd", seed, {"t1": [True], "t2": [True]})
+        _write_run(tmp_path, f"u{seed}", "uvd", seed, {"t1": [False], "t2": [False]})
+        _write_run(tmp_path, f"e{seed}", "expert", seed, {"t1": [True], "t2": [True]})
+    md, _ = write_tables(tmp_path, tmp_path / "out")
+    rows = {line.split(" | ")[0].strip("| *"): line for line in md.split("paired differences")[1].splitlines()
+            if line.startswith("| ")}
+    assert "-100.0 | [-100.0, -100.0] | **yes** | 4" in rows["uvd"]
+    assert "+0.0 | [+0.0, +0.0] | no | 4" in rows["expert"]
