@@ -6,11 +6,11 @@ candidate intervals, so two (T, D) x (D, N) matrix products give every candidate
 with every entry as a sum of two looked-up rows; a max over the database finishes the search.
 The database is processed in chunks so memory stays bounded for a million entries.
 
-Pruning (still exact): entries are stored grouped into blocks of similar interval vectors (a small
-k-means at fit time). A block's largest begin cosine plus its largest end cosine bounds every entry's
-score in it from above; a block whose bound is below a score already reached cannot hold the
-nearest entry and is skipped. Float rounding is monotone, so the bound holds in float32 as well.
-Where the bounds prune little (e.g. unstructured data) the dense path is taken.
+Pruning (still exact, ``rdd.index._cap_bounds``): begin and end vectors are clustered at fit time;
+spherical-cap bounds per cluster, from (T, K) products with the cluster centres, rule out every
+cell of entries whose best possible score is below a score some entry is certain to reach. Only
+the surviving entries' products are computed and searched. Where the bounds rule out too little
+(unclustered data) the dense path is taken.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from rdd.index.base import NearestIndex
+from rdd.index._cap_bounds import Cells, fit_cells, ranges
 from rdd.scoring import check_intervals, cosine_to_angular
 
 
@@ -32,20 +33,20 @@ class ExactIndex(NearestIndex):
     name = "exact"
 
     def __init__(self, memory_mb: int = 256, threads: int | None = None, prune: bool = True,
-                 block_size: int = 32, seed: int = 0) -> None:
+                 cluster_size: int = 16, seed: int = 0) -> None:
         super().__init__()
-        if block_size < 1:
-            raise ValueError(f"exact index: block_size must be >= 1, got {block_size}")
-        self.prune, self.block_size, self.seed = bool(prune), int(block_size), int(seed)
-        self.last_searched_fraction = float("nan")
-        self.probe_blocks = 8  # blocks searched first per start frame to get tight lower bounds
+        if cluster_size < 1:
+            raise ValueError(f"exact index: cluster_size must be >= 1, got {cluster_size}")
         if memory_mb <= 0:
             raise ValueError(f"exact index: memory_mb must be positive, got {memory_mb}")
         if threads is not None and threads < 1:
             raise ValueError(f"exact index: threads must be None or >= 1, got {threads}")
+        self.prune, self.cluster_size, self.seed = bool(prune), int(cluster_size), int(seed)
         self.memory_mb = int(memory_mb)
         # numpy releases the GIL in add/argmax, so plain threads share the max-over-database work.
         self.threads = int(threads) if threads is not None else min(2, os.cpu_count() or 1)
+        self.last_searched_fraction = float("nan")
+        self._cells: Cells | None = None
 
     def _fit(self, begin: np.ndarray, end: np.ndarray, cache_dir: Path | None, key: str | None) -> None:
         norm = np.sqrt((begin.astype(np.float64) ** 2).sum(1) + (end.astype(np.float64) ** 2).sum(1))
@@ -56,11 +57,12 @@ class ExactIndex(NearestIndex):
         inv = (1.0 / norm).astype(np.float32)[:, None]
         b, e = begin * inv, end * inv
         n = b.shape[0]
-        if self.prune and n >= 4 * self.block_size:
-            self._perm, self._offsets = _cluster_blocks(b, e, self.block_size, self.seed)
+        if self.prune and n >= 4 * self.cluster_size:
+            self._cells = fit_cells(b, e, self.cluster_size, self.seed)
+            self._perm = self._cells.perm
         else:
-            self._perm, self._offsets = np.arange(n), None
-        # Stored in block order; self._perm maps a stored position back to the caller's entry id.
+            self._cells, self._perm = None, np.arange(n)
+        # Stored in cell order; self._perm maps a stored position back to the caller's entry id.
         self._begin = np.ascontiguousarray(b[self._perm])
         self._end = np.ascontiguousarray(e[self._perm])
 
@@ -93,54 +95,12 @@ class ExactIndex(NearestIndex):
         if cols is not None:
             idx = cols[idx]
         cur = best[rows]
-        better = val > cur  # strict: the lowest entry id wins ties, as in one argmax over all
+        better = val > cur  # strict: the lowest stored position wins ties, as in one argmax over all
         cur[better] = val[better]
         best[rows] = cur
         ids = best_id[rows]
         ids[better] = idx[better] + offset
         best_id[rows] = ids
-
-    def _chunk_products(self, fv: np.ndarray, c: int, nc: int, pool: ThreadPoolExecutor,
-                        workers: int) -> dict:
-        """Begin/end dot products of every frame with database chunk ``[c, c + nc)`` and block bounds."""
-        begin, end = self._begin[c : c + nc], self._end[c : c + nc]
-        sb = np.empty((fv.shape[0], begin.shape[0]), dtype=np.float32)  # every frame as a begin
-        se = np.empty_like(sb)  # every frame as an end
-        # Rows split over our own threads (BLAS held to one thread each, see search_intervals).
-        rows = [r for r in np.array_split(np.arange(fv.shape[0]), workers) if r.size]
-        futures = [pool.submit(np.matmul, fv[r[0] : r[-1] + 1], m.T, out=o[r[0] : r[-1] + 1])
-                   for r in rows for m, o in ((begin, sb), (end, se))]
-        for f in futures:
-            f.result()
-        chunk: dict = {"sb": sb, "se": se, "blocks": None}
-        if self._offsets is None:
-            return chunk
-        width = sb.shape[1]
-        inside = self._offsets[(self._offsets > c) & (self._offsets < c + width)] - c
-        offs = np.concatenate([[0], inside]).astype(np.int64)
-        chunk["blocks"] = offs
-        chunk["sizes"] = np.diff(np.append(offs, width))
-        chunk["bmb"] = np.maximum.reduceat(sb, offs, axis=1)  # (T, K) block maxima
-        chunk["bme"] = np.maximum.reduceat(se, offs, axis=1)
-        rows = np.arange(sb.shape[0])
-        chunk["arg_b"], chunk["arg_e"] = sb.argmax(1), se.argmax(1)
-        chunk["max_e"] = se[rows, chunk["arg_e"]]
-        return chunk
-
-    @staticmethod
-    def _needed_columns(chunk: dict, start: int, eg: np.ndarray, best_so_far: np.ndarray,
-                        ub: np.ndarray, done: np.ndarray) -> np.ndarray | None:
-        """Chunk columns outside ``done`` blocks that may hold a better entry; None = search all."""
-        sb, se = chunk["sb"], chunk["se"]
-        # Lower bounds: scores actually reached by the best end match, the best begin match and the
-        # blocks searched so far. A block whose upper bound is below them all is skipped.
-        b = chunk["arg_b"][start]
-        lb = np.maximum(sb[start, chunk["arg_e"][eg]] + chunk["max_e"][eg], sb[start, b] + se[eg, b])
-        lb = np.maximum(lb, best_so_far)
-        need = (ub >= lb[:, None]).any(axis=0) & ~done
-        if chunk["sizes"][need].sum() * 2 > sb.shape[1]:
-            return None  # the bounds prune too little: the dense pass is cheaper
-        return _block_columns(chunk, need)
 
     def search_intervals(
         self, frame_vectors: np.ndarray, starts, ends, chunk: int = 8192
@@ -164,75 +124,137 @@ class ExactIndex(NearestIndex):
         # Group candidates by start frame; within a group, sorted ends usually form a run, so the
         # end-frame rows are a contiguous slice (a view, no gather).
         order = np.lexsort((e, s))
-        s_sorted, e_sorted = s[order], e[order]
-        cuts = np.flatnonzero(np.diff(s_sorted)) + 1
-        groups = np.split(np.arange(order.size), cuts)
-        t = fv.shape[0]
-        longest = max(g.size for g in groups)
-        # Two (T, Nc) product matrices plus one (longest, Nc) work buffer per thread and chunk.
-        nc = self._chunk_entries(2 * t + min(self.threads, len(groups)) * longest)
+        groups = _Groups(s[order], e[order])
         best = np.full(order.size, -np.inf, dtype=np.float32)
         best_id = np.zeros(order.size, dtype=np.int64)
-        workers = min(self.threads, len(groups))
-        # Contiguous halves of the groups per thread: each writes its own slice of best/best_id.
-        parts = [p for p in np.array_split(np.arange(len(groups)), workers) if p.size]
-        bufs = [np.empty((longest, min(nc, self.num_entries)), dtype=np.float32) for _ in parts]
-
-        searched = np.zeros(len(parts), dtype=np.int64)  # (candidate, entry) pairs scored, per thread
-
-        def run(worker: int, part: np.ndarray, buf: np.ndarray, c: int, chunk: dict) -> None:
-            sb, se = chunk["sb"], chunk["se"]
-            width = sb.shape[1]
-            for gi in part:
-                g = groups[gi]
-                rows = slice(int(g[0]), int(g[-1]) + 1)
-                start = int(s_sorted[g[0]])
-                eg = e_sorted[g] - 1
-                run_of_rows = eg[-1] - eg[0] + 1 == g.size
-                se_rows = se[eg[0] : eg[-1] + 1] if run_of_rows else se[eg]
-                if chunk["blocks"] is not None:
-                    ub = chunk["bme"][eg] + chunk["bmb"][start]  # (|E|, K) upper bounds per block
-                    # Stage 1: the blocks with the highest bounds, searched exactly, give lower bounds.
-                    top = np.zeros(ub.shape[1], dtype=bool)
-                    m = min(self.probe_blocks, ub.shape[1])
-                    top[np.argpartition(-ub.max(axis=0), m - 1)[:m]] = True
-                    cols = _block_columns(chunk, top)
-                    sub = np.take(se_rows, cols, axis=1)
-                    sub += sb[start, cols]
-                    self._update(sub, c, best, best_id, rows, cols)
-                    searched[worker] += sub.size
-                    # Stage 2: every other block whose bound reaches the best score found so far.
-                    cols = self._needed_columns(chunk, start, eg, best[rows], ub, top)
-                    if cols is not None:
-                        if cols.size:
-                            sub = np.take(se_rows, cols, axis=1)
-                            sub += sb[start, cols]
-                            self._update(sub, c, best, best_id, rows, cols)
-                            searched[worker] += sub.size
-                        continue
-                out = buf[: g.size, :width]
-                np.add(se_rows, sb[start], out=out)
-                self._update(out, c, best, best_id, rows)
-                searched[worker] += out.size
-
-        with ThreadPoolExecutor(max_workers=len(parts)) as pool, _one_blas_thread():
-            for c in range(0, self.num_entries, nc):
-                chunk = self._chunk_products(fv, c, nc, pool, len(parts))
-                futures = [pool.submit(run, w, p, b, c, chunk)
-                           for w, (p, b) in enumerate(zip(parts, bufs, strict=True))]
-                for f in futures:
-                    f.result()
+        keep = None if self._cells is None else self._survivors(fv, sq, groups)
+        if keep is None:
+            self._search_dense(fv, groups, best, best_id, self._begin, self._end)
+        else:
+            self._search_dense(fv, groups, best, best_id, self._begin[keep], self._end[keep])
+            best_id = keep[best_id]
+        searched = groups.size * (self.num_entries if keep is None else keep.size)
         # Share of the (candidate, entry) pairs a dense search would score that were scored.
-        self.last_searched_fraction = float(searched.sum()) / (order.size * self.num_entries)
+        self.last_searched_fraction = float(searched) / (order.size * self.num_entries)
         ids = np.empty_like(best_id)
         cos = np.empty(order.size, dtype=np.float64)
         ids[order] = self._perm[best_id]
         cos[order] = best / qnorm[order]
         return ids, cosine_to_angular(cos)
 
+    def _search_dense(self, fv: np.ndarray, groups: _Groups, best: np.ndarray, best_id: np.ndarray,
+                      begin: np.ndarray, end: np.ndarray) -> None:
+        """Every candidate against every entry of ``begin``/``end``: chunked products, then a max."""
+        t, n = fv.shape[0], begin.shape[0]
+        longest = groups.longest
+        workers = min(self.threads, len(groups))
+        # Two (T, Nc) product matrices plus one (longest, Nc) work buffer per thread and chunk.
+        nc = self._chunk_entries(2 * t + workers * longest)
+        # Contiguous shares of the groups per thread: each writes its own slice of best/best_id.
+        parts = [p for p in np.array_split(np.arange(len(groups)), workers) if p.size]
+        bufs = [np.empty((longest, min(nc, n)), dtype=np.float32) for _ in parts]
+
+        def run(part: np.ndarray, buf: np.ndarray, c: int, sb: np.ndarray, se: np.ndarray) -> None:
+            for gi in part:
+                rows, start, se_rows = groups.rows(gi, se)
+                out = buf[: rows.stop - rows.start, : sb.shape[1]]
+                np.add(se_rows, sb[start], out=out)
+                self._update(out, c, best, best_id, rows)
+
+        with ThreadPoolExecutor(max_workers=len(parts)) as pool, _one_blas_thread():
+            for c in range(0, n, nc):
+                sb, se = self._products(fv, begin[c : c + nc], end[c : c + nc], pool, len(parts))
+                for f in [pool.submit(run, p, b, c, sb, se) for p, b in zip(parts, bufs, strict=True)]:
+                    f.result()
+
+    @staticmethod
+    def _products(fv: np.ndarray, begin: np.ndarray, end: np.ndarray, pool: ThreadPoolExecutor,
+                  workers: int) -> tuple[np.ndarray, np.ndarray]:
+        """Every frame's dot products with ``begin`` and ``end`` rows, frames split over the threads."""
+        sb = np.empty((fv.shape[0], begin.shape[0]), dtype=np.float32)  # every frame as a begin
+        se = np.empty_like(sb)  # every frame as an end
+        rows = [r for r in np.array_split(np.arange(fv.shape[0]), workers) if r.size]
+        futures = [pool.submit(np.matmul, fv[r[0] : r[-1] + 1], m.T, out=o[r[0] : r[-1] + 1])
+                   for r in rows for m, o in ((begin, sb), (end, se))]
+        for f in futures:
+            f.result()
+        return sb, se
+
+    def _survivors(self, fv: np.ndarray, sq: np.ndarray, groups: _Groups) -> np.ndarray | None:
+        """Stored positions of every entry that may be nearest to some candidate (ascending).
+
+        None when the bounds rule out too little for pruning to pay (the dense pass is taken).
+        """
+        cells = self._cells
+        f_norm = np.sqrt(sq)
+        f_unit = (fv / np.maximum(f_norm, 1e-300)[:, None]).astype(np.float32)  # a zero frame stays 0
+        lo_b, up_b = cells.begin.bounds(f_unit, f_norm)
+        lo_e, up_e = cells.end.bounds(f_unit, f_norm)
+        s, e = groups.s, groups.e - 1  # candidates' start and end frames
+        # A score some entry reaches, per candidate: the best lower bound over the cells of the
+        # start's two likeliest begin clusters and of the end's two likeliest end clusters (any
+        # set of non-empty cells gives a valid bound).
+        low = np.maximum(_probe(lo_b, lo_e, cells.by_begin, cells.je, s, e),
+                         _probe(lo_e, lo_b, cells.by_end_start, cells.jb[cells.by_end], e, s))
+        # float32 dot products err by at most D * 2^-24 * |f| here (entries have norm <= 1): a cell
+        # is kept unless it loses by more than twice that, so the float32 winner survives. The
+        # float32 copies of the bounds below are widened by 1e-6 (their own rounding).
+        slack = 2.5 * self.frame_dim * 2.0 ** -24 * f_norm
+        low = (low - slack[s] - slack[e] - 1e-6).astype(np.float32)
+        up_e32 = up_e.astype(np.float32)
+        # A cell (jb, je) can win candidate (s, e) only if up_b[s, jb] + up_e[e, je] >= low[s, e]:
+        # reach[g, je] = max over the ends e of group g of up_e[e, je] - low[s, e].
+        reach = np.empty((len(groups), up_e.shape[1]), dtype=np.float32)
+        for gi in range(len(groups)):
+            rows, _, up_rows = groups.rows(gi, up_e32)
+            np.max(up_rows - low[rows, None], axis=0, out=reach[gi])
+        up_start = (up_b[groups.s[groups.starts]] + 1e-6).astype(np.float32)  # (groups, Kb)
+        # Cheap necessary conditions first (each side against the other side's best), then the
+        # exact test on the cells that pass both.
+        jb_ok = (up_start + reach.max(axis=1, keepdims=True)).max(axis=0) >= 0
+        je_ok = (reach + up_start.max(axis=1, keepdims=True)).max(axis=0) >= 0
+        alive = jb_ok[cells.jb] & je_ok[cells.je]
+        test = np.flatnonzero(alive)
+        step = max(1, (64 << 20) // (4 * len(groups)))
+        for c in range(0, test.size, step):
+            t = test[c : c + step]
+            alive[t] = (np.take(up_start, cells.jb[t], axis=1) + np.take(reach, cells.je[t], axis=1)).max(axis=0) >= 0
+        keep = ranges(cells.start[:-1][alive], cells.start[1:][alive])
+        # An empty set would mean a bound is wrong (the probed cell always survives): search all.
+        return keep if 0 < keep.size <= 0.6 * self.num_entries else None
+
+class _Groups:
+    """Candidates sorted by (start, end), grouped by start frame."""
+
+    def __init__(self, s_sorted: np.ndarray, e_sorted: np.ndarray) -> None:
+        self.s, self.e = s_sorted, e_sorted
+        cuts = np.flatnonzero(np.diff(s_sorted)) + 1
+        self.starts = np.concatenate([[0], cuts])
+        self.stops = np.append(cuts, s_sorted.size)
+        self.size = int(s_sorted.size)
+        self.longest = int((self.stops - self.starts).max())
+
+    def __len__(self) -> int:
+        return self.starts.size
+
+    def start(self, gi: int) -> int:
+        """The group's start frame."""
+        return int(self.s[self.starts[gi]])
+
+    def end_frames(self, gi: int) -> np.ndarray:
+        """The group's end frames (end - 1 of each candidate)."""
+        return self.e[self.starts[gi] : self.stops[gi]] - 1
+
+    def rows(self, gi: int, se: np.ndarray) -> tuple[slice, int, np.ndarray]:
+        """The group's candidate rows, start frame, and its ends' rows of ``se`` (a view when contiguous)."""
+        a, b = int(self.starts[gi]), int(self.stops[gi])
+        eg = self.e[a:b] - 1
+        se_rows = se[eg[0] : eg[-1] + 1] if eg[-1] - eg[0] + 1 == b - a else se[eg]
+        return slice(a, b), int(self.s[a]), se_rows
+
 
 def build(**options) -> ExactIndex:
-    """The exact backend with ``options`` (memory_mb, threads, prune, block_size, seed)."""
+    """The exact backend with ``options`` (memory_mb, threads, prune, cluster_size, seed)."""
     return ExactIndex(**options)
 
 
@@ -249,42 +271,22 @@ def _one_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _block_columns(chunk: dict, mask: np.ndarray) -> np.ndarray:
-    """Chunk columns of the blocks selected by ``mask`` (concatenated ranges, no pass over all columns)."""
-    idx = np.flatnonzero(mask)
-    starts, lens = chunk["blocks"][idx], chunk["sizes"][idx]
-    total = int(lens.sum())
-    if total == 0:
-        return np.zeros(0, dtype=np.int64)
-    # position i of the output lies in range r: column = starts[r] + (i - first output index of r)
-    shift = np.repeat(starts - (np.cumsum(lens) - lens), lens)
-    return np.arange(total, dtype=np.int64) + shift
+def _probe(lo_x: np.ndarray, lo_y: np.ndarray, first_cell: np.ndarray, other_of_cell: np.ndarray,
+           x: np.ndarray, y: np.ndarray, r: int = 2) -> np.ndarray:
+    """Per candidate (x, y): max over the cells of x's top-``r`` clusters of lo_x[x, cx] + lo_y[y, cy].
 
-def _cluster_blocks(begin: np.ndarray, end: np.ndarray, block_size: int, seed: int, iters: int = 4,
-                    sketch_dim: int = 128, sample: int = 8192) -> tuple[np.ndarray, np.ndarray]:
-    """Order entries so that similar interval vectors sit together: (permutation, block starts).
-
-    Spherical k-means with about N / block_size centres (at most 1024), run on a random projection
-    of the vectors to ``sketch_dim`` dimensions; only the grouping depends on it, never a result.
+    ``first_cell[k]:first_cell[k + 1]`` are cluster k's cells (in some order) and ``other_of_cell``
+    their cluster on the other side, in the same order.
     """
-    rng = np.random.default_rng(seed)
-    n, d = begin.shape
-    # Sketch of concat(begin, end) without materialising the (N, 2D) concatenation.
-    proj = rng.normal(size=(2 * d, sketch_dim)).astype(np.float32) / np.sqrt(sketch_dim)
-    x = np.concatenate([begin[a : a + 65536] @ proj[:d] + end[a : a + 65536] @ proj[d:]
-                        for a in range(0, n, 65536)])
-    x = x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
-    k = max(1, min(n // block_size, 1024))
-    train = x[rng.choice(n, size=min(n, sample), replace=False)]
-    centres = train[rng.choice(train.shape[0], size=k, replace=False)]
-    for _ in range(iters):
-        assign = (train @ centres.T).argmax(1)
-        sums = np.zeros_like(centres)
-        np.add.at(sums, assign, train)
-        norm = np.linalg.norm(sums, axis=1, keepdims=True)
-        centres = np.where(norm > 0, sums / np.maximum(norm, 1e-12), centres)
-    assign = np.concatenate([(x[a : a + 65536] @ centres.T).argmax(1) for a in range(0, n, 65536)])
-    perm = np.argsort(assign, kind="stable")
-    counts = np.bincount(assign, minlength=k)
-    offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])[counts > 0]
-    return perm, offsets.astype(np.int64)
+    r = min(r, lo_x.shape[1])
+    top = np.argpartition(-lo_x, r - 1, axis=1)[:, :r]  # (T, r)
+    used = np.unique(top)
+    # best[i, t]: the largest lo_y[t, cy] over the cells of cluster used[i]
+    best = np.stack([lo_y[:, other_of_cell[first_cell[k] : first_cell[k + 1]]].max(axis=1) for k in used])
+    pos = np.searchsorted(used, top)  # (T, r) rows of best
+    out = np.full(x.size, -np.inf)
+    for i in range(r):
+        k = top[x, i]
+        out = np.maximum(out, lo_x[x, k] + best[pos[x, i], y])
+    return out
+

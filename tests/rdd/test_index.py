@@ -162,7 +162,7 @@ def test_exact_pruning_skips_entries_and_stays_exact():
     starts, ends = np.meshgrid(np.arange(t), np.arange(1, t + 1), indexing="ij")
     keep = (ends - starts >= 2) & (ends - starts <= 30)
     s, e = starts[keep], ends[keep]
-    pruned = ExactIndex(prune=True, block_size=16).fit(begin, end)
+    pruned = ExactIndex(prune=True, cluster_size=16).fit(begin, end)
     ids, dist = pruned.search_intervals(fv, s, e)
     assert pruned.last_searched_fraction < 0.5  # the bounds really skip blocks here
     dense = ExactIndex(prune=False).fit(begin, end)
@@ -170,6 +170,40 @@ def test_exact_pruning_skips_entries_and_stays_exact():
     assert dense.last_searched_fraction == pytest.approx(1.0)
     # float32 products over different block shapes round differently (about 1e-6 after the sqrt)
     np.testing.assert_allclose(dist, dist_d, atol=1e-5)
+    ref_ids, ref_dist, cos = brute_force(np.concatenate([fv[s], fv[e - 1]], 1), begin, end)
+    np.testing.assert_allclose(dist, ref_dist, atol=1e-5)
+    top2 = np.sort(cos, axis=1)[:, -2:]
+    clear = top2[:, 1] - top2[:, 0] > 1e-5
+    np.testing.assert_array_equal(ids[clear], ref_ids[clear])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_pruned_exact_equals_brute_force_on_adversarial_databases(seed):
+    """Cap-bound pruning never drops the nearest entry: tight and loose clusters, duplicated
+    entries, zero begin parts, entries of very different lengths, zero frames."""
+    rng = np.random.default_rng(seed)
+    d, t, n = 24, 70, 3000
+    way = rng.normal(size=(40, d))
+    pairs = rng.integers(40, size=(n, 2))
+    spread = [0.01, 0.05, 0.3, 1.0][seed]  # from tight caps to nearly unclustered data
+    begin = way[pairs[:, 0]] + spread * rng.normal(size=(n, d))
+    end = way[pairs[:, 1]] + spread * rng.normal(size=(n, d))
+    begin[:50] = begin[50:100]  # exact duplicates
+    end[:50] = end[50:100]
+    begin[100:140] = 0.0  # an interval of end frame only (a zero end frame is refused at fit)
+    begin[140:400] *= rng.uniform(0.05, 20.0, size=(260, 1))  # lengths vary per entry and part
+    end[140:400] *= rng.uniform(0.05, 20.0, size=(260, 1))
+    path = way[rng.integers(40, size=6)]
+    fv = np.concatenate([np.linspace(path[i], path[i + 1], 14, endpoint=False) for i in range(5)])
+    fv = fv + 0.02 * rng.normal(size=fv.shape)
+    fv[7] = 0.0  # a zero frame: its intervals are scored on their other end alone
+    starts, ends = np.meshgrid(np.arange(t), np.arange(1, t + 1), indexing="ij")
+    keep = (ends - starts >= 2) & (ends - starts <= 40)
+    s, e = starts[keep], ends[keep]
+    idx = ExactIndex(prune=True, cluster_size=8).fit(begin, end)
+    ids, dist = idx.search_intervals(fv, s, e)
+    if spread <= 0.05:
+        assert idx.last_searched_fraction < 0.5  # tight clusters: most entries are never scored
     ref_ids, ref_dist, cos = brute_force(np.concatenate([fv[s], fv[e - 1]], 1), begin, end)
     np.testing.assert_allclose(dist, ref_dist, atol=1e-5)
     top2 = np.sort(cos, axis=1)[:, -2:]
