@@ -152,8 +152,14 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--ood", action=argparse.BooleanOptionalAction, default=True,
                    help="time the OOD mode against the default mode (exact backend)")
     p.add_argument("--scale", default="", help="database sizes for the scale section, e.g. 12700,100000")
-    p.add_argument("--scale-backends", default="exact,faiss-hnsw,faiss-ivf",
+    p.add_argument("--scale-backends", default="exact,exact-dense,faiss-hnsw,faiss-ivf",
                    help="backends timed in the scale section (recall@1 against exact)")
+    p.add_argument("--scale-embed-dim", type=int, default=None,
+                   help="embedding size per view in the scale section (default --embed-dim; a million "
+                        "1024-d entries need 16 GB)")
+    p.add_argument("--approx-max-entries", type=int, default=100_000,
+                   help="skip the faiss and annoy backends above this database size in the scale section "
+                        "(on a CPU they search every candidate as a 2D-d vector: hours at a million)")
     p.add_argument("--out", type=Path, default=Path("outputs/bench"))
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -276,11 +282,19 @@ def scale_section(world: World, fv: np.ndarray, args) -> list[dict]:
     to 1e-6 in distance); also whether the decomposition equals the exact backend's.
     """
     rows = []
+    dim = args.scale_embed_dim or args.embed_dim
+    if dim != args.embed_dim:
+        world = World(dim, args.views, args.seed)
+        fv, _ = world.trajectory(args.frames)
+    print(f"scale section: T={fv.shape[0]}, frame vectors {fv.shape[1]}-d")
     for n in [int(x) for x in args.scale.split(",") if x]:
         db = world.database(n) if n <= 200_000 else world.waypoint_database(n)
         exact_ids = exact_dist = exact_segs = None
         for name in [b for b in args.scale_backends.split(",") if b]:
             backend, options = BACKEND_SPECS[name]
+            if backend != "exact" and n > args.approx_max_entries:
+                print(f"  N={n:>8} {name:>11}: skipped (above --approx-max-entries {args.approx_max_entries})")
+                continue
             try:
                 t_fit, dec = timed(lambda b=backend, o=options, d=db: RDDDecomposer(
                     d, alpha=args.alpha, min_len=args.min_len, max_len=args.max_len, backend=b,
@@ -298,7 +312,9 @@ def scale_section(world: World, fv: np.ndarray, args) -> list[dict]:
             dec.index.search_intervals = capture
             t_run, res = timed(lambda d=dec: d.decompose_embeddings(fv))
             ids, dist = captured["r"]
-            row = {"entries": n, "backend": name, "build_s": t_fit, "decompose_s": t_run}
+            row = {"entries": n, "frame_dim": int(fv.shape[1]), "backend": name, "build_s": t_fit,
+                   "decompose_s": t_run,
+                   "searched_fraction": getattr(dec.index, "last_searched_fraction", None)}
             if name == "exact":
                 exact_ids, exact_dist, exact_segs = ids, dist, res.segments
             if exact_ids is not None:

@@ -33,3 +33,22 @@ def test_benchmark_tiny_run(tmp_path):
     for name in ("results.json", "scaling.csv", "scaling.md", "scaling.png"):
         assert (out / name).is_file(), name
     assert json.loads((out / "results.json").read_text())["candidates"] == res["candidates"]
+
+
+def test_rdd_core_benchmark_one_run(tmp_path):
+    """The one-run driver: decomposition per backend and size (approximate ones skipped above the
+    limit), recall against exact, OOD vs default, and its summary table."""
+    spec = importlib.util.spec_from_file_location("bench_rdd_core", BENCH.parent / "bench_rdd_core.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path / "core"
+    res = bench.main(["--frames", "50", "--max-len", "15", "--entries", "300", "--embed-dim", "32",
+                      "--scale", "300,700", "--scale-embed-dim", "16", "--approx-max-entries", "300",
+                      "--scale-backends", "exact,exact-dense,faiss-flat", "--naive-limit", "5", "--out", str(out)])
+    rows = res["decompose"]["scale"]
+    assert {(r["entries"], r["backend"]) for r in rows} == {
+        (300, "exact"), (300, "exact-dense"), (300, "faiss-flat"), (700, "exact"), (700, "exact-dense")}
+    assert all(r["frame_dim"] == 16 for r in rows)
+    assert all(r["recall_at_1"] == pytest.approx(1.0) for r in rows)  # all three are exact searches
+    summary = (out / "summary.md").read_text()
+    assert "OOD" in summary and "| 700 | 16 | exact |" in summary
