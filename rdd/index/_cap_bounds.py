@@ -34,8 +34,8 @@ class Caps:
     n_min: np.ndarray  # (K,) member lengths
     n_max: np.ndarray
 
-    def bounds(self, f_unit: np.ndarray, f_norm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(T, K) lower and upper bounds of ``f . x`` over each cluster's members x.
+    def cos_bounds(self, f_unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(T, K) lower and upper bounds of the cosine between each unit frame and a cluster's members.
 
         ``f_unit`` is float32; its float32 cosines with the centres err by at most D * 2^-24, so
         the upper bound is taken at the cosine plus that error and the lower at it minus.
@@ -45,9 +45,14 @@ class Caps:
         hi, lo = np.minimum(c + err, 1.0), np.maximum(c - err, -1.0)
         cu = np.where(hi >= self.cos_t, 1.0, hi * self.cos_t + np.sqrt(1.0 - hi * hi) * self.sin_t)
         cl = np.where(lo <= -self.cos_t, -1.0, lo * self.cos_t - np.sqrt(1.0 - lo * lo) * self.sin_t)
+        return cl, cu
+
+    def bounds(self, f_unit: np.ndarray, f_norm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(T, K) lower and upper bounds of ``f . x`` over each cluster's members x (``f = f_unit * f_norm``)."""
+        cl, cu = self.cos_bounds(f_unit)
         up = np.where(cu >= 0, self.n_max * cu, self.n_min * cu) * f_norm[:, None]
-        lo_b = np.where(cl >= 0, self.n_min * cl, self.n_max * cl) * f_norm[:, None]
-        return lo_b, up
+        low = np.where(cl >= 0, self.n_min * cl, self.n_max * cl) * f_norm[:, None]
+        return low, up
 
     @property
     def centres32(self) -> np.ndarray:

@@ -117,18 +117,21 @@ class NearestIndex(ABC):
         best = np.full(q.shape[0], -np.inf, dtype=np.float32)
         nc = max(1, (memory_mb << 20) // (4 * max(q.shape[0], 1)))
         rows = np.arange(q.shape[0])
+        shortlist = self._end_shortlist(q)  # entry ids that may be nearest (None: all)
+        total = self.num_entries if shortlist is None else shortlist.size
         # float32 products err by up to ~1e-5 in cosine; near an exact match that is a visible
         # angular distance (sqrt), so every entry within `tol` of a row's float32 best is rescored
         # in float64 and the best of those wins (lowest id among exact ties).
         tol = 1e-4
         cand_rows, cand_cols = [], []
-        for c in range(0, self.num_entries, nc):
-            dots = q @ self._raw_end[c : c + nc].T
-            dots *= self._end_inv_norm[c : c + nc]
+        for c in range(0, total, nc):
+            cols = np.arange(c, min(c + nc, total)) if shortlist is None else shortlist[c : c + nc]
+            dots = q @ (self._raw_end[c : c + nc] if shortlist is None else self._raw_end[cols]).T
+            dots *= self._end_inv_norm[cols]
             best = np.maximum(best, dots.max(axis=1))
             r, k = np.nonzero(dots >= (best - tol)[:, None])
             cand_rows.append(r)
-            cand_cols.append(k + c)
+            cand_cols.append(cols[k])
         r, k = np.concatenate(cand_rows), np.concatenate(cand_cols)
         qd = fv[r].astype(np.float64) / norm[r, None]
         ed = self._raw_end[k].astype(np.float64)
@@ -142,6 +145,14 @@ class NearestIndex(ABC):
         best_id[r[pick]], best_cos[r[pick]] = k[pick], cos[pick]
         assert (np.bincount(r[pick], minlength=rows.size) == 1).all()
         return best_id, cosine_to_angular(best_cos)
+
+    def _end_shortlist(self, unit_frames: np.ndarray) -> np.ndarray | None:
+        """Ascending ids of the entries that may hold some frame's nearest end (None: every entry).
+
+        Backends with bounds on end-frame cosines override it; the result must contain every
+        frame's nearest entry, and every entry within float32 rounding of it.
+        """
+        return None
 
 
 def interval_matrix(begin: np.ndarray, end: np.ndarray, normalize: bool = True) -> np.ndarray:

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rdd.index.base import NearestIndex
 from rdd.index._cap_bounds import Cells, fit_cells, ranges
+from rdd.index.base import NearestIndex
 from rdd.scoring import check_intervals, cosine_to_angular
 
 
@@ -222,6 +222,19 @@ class ExactIndex(NearestIndex):
         keep = ranges(cells.start[:-1][alive], cells.start[1:][alive])
         # An empty set would mean a bound is wrong (the probed cell always survives): search all.
         return keep if 0 < keep.size <= 0.6 * self.num_entries else None
+
+    def _end_shortlist(self, unit_frames: np.ndarray) -> np.ndarray | None:
+        """Entries of every end cluster whose cosine bound reaches some frame's certain best."""
+        cells = self._cells
+        if cells is None:
+            return None
+        low, up = cells.end.cos_bounds(unit_frames)
+        # Each cluster's lower bound is a cosine one of its members reaches with that frame.
+        need = np.flatnonzero((up >= (low.max(axis=1) - 1e-6)[:, None]).any(axis=0))
+        member_cells = cells.by_end[ranges(cells.by_end_start[need], cells.by_end_start[need + 1])]
+        stored = ranges(cells.start[member_cells], cells.start[member_cells + 1])
+        return np.sort(self._perm[stored]) if stored.size <= 0.6 * self.num_entries else None
+
 
 class _Groups:
     """Candidates sorted by (start, end), grouped by start frame."""

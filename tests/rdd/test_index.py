@@ -209,3 +209,22 @@ def test_pruned_exact_equals_brute_force_on_adversarial_databases(seed):
     top2 = np.sort(cos, axis=1)[:, -2:]
     clear = top2[:, 1] - top2[:, 0] > 1e-5
     np.testing.assert_array_equal(ids[clear], ref_ids[clear])
+
+
+def test_exact_search_ends_shortlist_equals_brute_force():
+    """OOD retrieval (nearest end frame) over the cap-bound shortlist equals a float64 scan."""
+    rng = np.random.default_rng(9)
+    d, n = 16, 4000
+    way = rng.normal(size=(30, d))
+    begin = way[rng.integers(30, size=n)] + 0.02 * rng.normal(size=(n, d))
+    end = (way[rng.integers(30, size=n)] + 0.02 * rng.normal(size=(n, d))) * rng.uniform(0.1, 10, (n, 1))
+    end[:40] = end[40:80]  # exact duplicates: the lowest id wins
+    frames = way[rng.integers(5, size=60)] + 0.05 * rng.normal(size=(60, d))  # a demo near 5 waypoints
+    idx = ExactIndex(prune=True, cluster_size=8).fit(begin, end)
+    unit = (frames / np.linalg.norm(frames, axis=1, keepdims=True)).astype(np.float32)
+    shortlist = idx._end_shortlist(unit)
+    assert shortlist is not None and shortlist.size < n  # the bounds really rule entries out
+    ids, dist = idx.search_ends(frames)
+    cos = (frames / np.linalg.norm(frames, axis=1, keepdims=True)) @ (end / np.linalg.norm(end, axis=1, keepdims=True)).T
+    np.testing.assert_allclose(dist, np.sqrt(np.maximum(2 - 2 * cos.max(1), 0)), atol=1e-6)
+    np.testing.assert_array_equal(ids, cos.argmax(1))
