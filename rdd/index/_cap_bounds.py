@@ -137,17 +137,18 @@ class Cells:
 
 def choose_caps(x: np.ndarray, cluster_size: int, seed: int) -> tuple[np.ndarray, Caps]:
     """Clusters of ``x`` whose caps are tight: the fewest (of N/c, N/4c, N/16c, at most 1024) whose
-    median cap is within 1.5x (in 1 - cos) of the most numerous's; more clusters than the data's
-    own groups only fragment the cells without tightening the caps."""
+    90th-percentile cap is within 1.5x (in 1 - cos) of the most numerous's. More clusters than the
+    data's own groups only fragment the cells; fewer merge groups into wide caps that bound nothing.
+    """
     n = x.shape[0]
     ks = sorted({max(1, min(n // (cluster_size * 4 ** i), 1024)) for i in range(3)}, reverse=True)
     fits = []
     for k in ks:
         assign = np.unique(spherical_kmeans(x, k, seed), return_inverse=True)[1]  # dense ids
         fits.append((assign, fit_caps(x, assign)))
-    tightest = 1.0 - np.median(fits[0][1].cos_t)
-    for assign, caps in reversed(fits):
-        if 1.0 - np.median(caps.cos_t) <= 1.5 * tightest + 1e-12:
+    width = [np.percentile(1.0 - caps.cos_t, 90) for _, caps in fits]
+    for (assign, caps), w in reversed(list(zip(fits, width, strict=True))):
+        if w <= 1.5 * width[0] + 1e-12:
             return assign, caps
     return fits[0]
 
