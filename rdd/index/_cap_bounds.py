@@ -137,8 +137,9 @@ class Cells:
 
 def choose_caps(x: np.ndarray, cluster_size: int, seed: int) -> tuple[np.ndarray, Caps]:
     """Clusters of ``x`` whose caps are tight: the fewest (of N/c, N/4c, N/16c, at most 1024) whose
-    90th-percentile cap is within 1.5x (in 1 - cos) of the most numerous's. More clusters than the
-    data's own groups only fragment the cells; fewer merge groups into wide caps that bound nothing.
+    median cap is within 2x (in 1 - cos) of the most numerous's, then every cap much wider than the
+    median split in two. More clusters than the data's own groups only fragment the cells; a cap
+    spanning two groups bounds nothing.
     """
     n = x.shape[0]
     ks = sorted({max(1, min(n // (cluster_size * 4 ** i), 1024)) for i in range(3)}, reverse=True)
@@ -146,11 +147,30 @@ def choose_caps(x: np.ndarray, cluster_size: int, seed: int) -> tuple[np.ndarray
     for k in ks:
         assign = np.unique(spherical_kmeans(x, k, seed), return_inverse=True)[1]  # dense ids
         fits.append((assign, fit_caps(x, assign)))
-    width = [np.percentile(1.0 - caps.cos_t, 90) for _, caps in fits]
-    for (assign, caps), w in reversed(list(zip(fits, width, strict=True))):
-        if w <= 1.5 * width[0] + 1e-12:
-            return assign, caps
-    return fits[0]
+    width = [np.median(1.0 - caps.cos_t) for _, caps in fits]
+    assign, caps = next(f for f, w in zip(reversed(fits), reversed(width), strict=True)
+                        if w <= 2.0 * width[0] + 1e-12)
+    for _ in range(4):
+        # Wide in angle (much wider than the median cap) or in length (longest > 2x shortest).
+        angle = 1.0 - caps.cos_t > 4.0 * np.median(1.0 - caps.cos_t) + 1e-9
+        length = caps.n_min < 0.5 * caps.n_max
+        wide = np.flatnonzero((angle | length) & (np.bincount(assign, minlength=angle.size) > 1))
+        wide = wide[: max(0, 1024 - angle.size)]
+        if wide.size == 0:
+            break
+        assign = assign.copy()
+        norms = np.linalg.norm(x, axis=1)
+        for j in wide:  # split each wide cluster in two; new ids go at the end
+            rows = np.flatnonzero(assign == j)
+            if angle[j]:
+                half = spherical_kmeans(x[rows], 2, seed + int(j)) == 1
+            else:
+                half = norms[rows] > np.median(norms[rows])
+            if half.any() and not half.all():
+                assign[rows[half]] = assign.max() + 1
+        assign = np.unique(assign, return_inverse=True)[1]
+        caps = fit_caps(x, assign)
+    return assign, caps
 
 
 def fit_cells(begin: np.ndarray, end: np.ndarray, cluster_size: int, seed: int) -> Cells:
