@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from rdd.atomic import atomic_dir
+from rdd.data._walk import find_named
 from rdd.data.episode import Episode
 from rdd.data.frames import update_with_file
 
@@ -309,7 +310,7 @@ def load_episodes(folder: str | Path) -> list[Episode]:
         return [load_episode(folder)]
     dirs = [
         p.parent
-        for p in folder.rglob(EPISODE_FILE)
+        for p in find_named(folder, EPISODE_FILE)
         if not any(part.startswith(".") for part in p.parent.relative_to(folder).parts)
     ]
     if not dirs:

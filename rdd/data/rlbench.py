@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from rdd.data._walk import find_named
 from rdd.data.episode import Episode
 from rdd.data.frames import ImageFileFrames
 
@@ -219,7 +220,7 @@ def load_episodes(path: str | Path, views: Sequence[str] | None = ("front", "wri
         raise FileNotFoundError(f"RLBench path {path} does not exist")
     if (path / LOW_DIM_FILE).is_file():
         return [load_episode(path, views)]
-    dirs = sorted({p.parent for p in path.rglob(LOW_DIM_FILE)}, key=_natural_key)
+    dirs = sorted({p.parent for p in find_named(path, LOW_DIM_FILE)}, key=_natural_key)
     if not dirs:
         raise FileNotFoundError(f"{path} holds no RLBench episodes (no */{LOW_DIM_FILE})")
     names = [d.name for d in dirs]

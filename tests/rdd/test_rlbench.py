@@ -67,3 +67,16 @@ def test_real_episodes():
     assert set(np.unique(e0.gripper_open)) <= {0.0, 1.0}
     with pytest.raises(FileNotFoundError, match="available views"):
         load_episode(DATA / "open_drawer/all_variations/episodes/episode0", views=("overhead",))
+
+
+@pytest.mark.skipif(not DATA.exists(), reason="../shared/data/rlbench is absent")
+def test_symlinked_episode_folders_are_found(tmp_path):
+    """Datasets are often linked in: episodes behind symlinked folders load, a link cycle is harmless."""
+    src = DATA / "open_drawer/all_variations/episodes"
+    (tmp_path / "mine").mkdir()
+    for name in ("episode0", "episode3"):
+        (tmp_path / "mine" / name).symlink_to(src / name, target_is_directory=True)
+    (tmp_path / "mine" / "loop").symlink_to(tmp_path / "mine", target_is_directory=True)
+    eps = load_episodes(tmp_path / "mine")
+    assert [e.name for e in eps] == ["episode0", "episode3"]
+    assert eps[1].num_frames == load_episode(src / "episode3").num_frames
