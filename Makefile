@@ -40,8 +40,10 @@ SCALE ?= default
 reproduce: $(STAMP)
 	$(PY) -m experiments.reproduce --scale $(SCALE)
 
+# The RDD core's figures in one run (build-db part on the shared RLBench episodes when present).
+RLBENCH_EPISODES ?= ../shared/data/rlbench/open_drawer/all_variations/episodes
 bench: $(STAMP)
-	$(PY) benchmarks/bench_decompose.py
+	$(PY) benchmarks/bench_rdd_core.py $(if $(wildcard $(RLBENCH_EPISODES)),--data $(RLBENCH_EPISODES))
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache
