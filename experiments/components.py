@@ -227,8 +227,8 @@ def load_policy(policy_cfg: DictConfig, path: Path, text_cache: Path):
 
 
 # --- planner ---------------------------------------------------------------------------------------
-def planner_config(planner_cfg: DictConfig):
-    """The planner's typed config (``planner.config.PlannerConfig``) from its group node."""
+def learned_planner(planner_cfg: DictConfig):
+    """The learned planner the config names (``planner.llava``: its settings and training steps)."""
     from experiments.instantiate import instantiate_component
 
     return instantiate_component(planner_cfg, "planner")
@@ -236,46 +236,31 @@ def planner_config(planner_cfg: DictConfig):
 
 def planner_view(planner_cfg: DictConfig) -> str:
     """The camera view the planner sees (as in its training examples)."""
-    return planner_config(planner_cfg).view
+    return learned_planner(planner_cfg).view
 
 
 def planner_base_spec(planner_cfg: DictConfig) -> dict[str, Any]:
     """The part of the planner config that makes the base (finetuning settings excluded)."""
-    cfg = planner_config(planner_cfg)
-    return {"model": cfg.model_dict()}
-
-
-def _examples(cfg, episodes, settings) -> list:
-    from planner.train import training_examples
-
-    return training_examples(episodes, settings, cfg.view)  # each episode's own segments
+    return learned_planner(planner_cfg).base_spec()
 
 
 def pretrain_planner(planner_cfg: DictConfig, episodes, corpus: Sequence[str], out: Path) -> None:
     """Pretrain the base planner on the pretraining tasks' demos (its tokenizer also sees ``corpus``)."""
-    from planner.train import pretrain_base
-
-    cfg = planner_config(planner_cfg)
-    examples = _examples(cfg, episodes, cfg.pretrain)
-    path = pretrain_base(cfg, examples, out, extra_corpus=list(corpus), progress=progress_enabled())
+    path = learned_planner(planner_cfg).pretrain(episodes, out, extra_corpus=list(corpus),
+                                                 progress=progress_enabled())
     write_json_atomic(out / PLANNER_FILE, {"base": _relative(path, out)})
 
 
 def finetune_planner(planner_cfg: DictConfig, base_dir: Path, episodes, seed: int, out: Path) -> None:
     """LoRA-finetune the base planner on demonstrations carrying their decomposition and labels."""
-    from planner.train import finetune_lora
-
-    cfg = planner_config(planner_cfg)
-    examples = _examples(cfg, episodes, cfg.finetune)
-    path = finetune_lora(cfg, _resolve(base_dir), examples, out, seed=seed, progress=progress_enabled())
+    path = learned_planner(planner_cfg).finetune(_resolve(base_dir), episodes, out, seed=seed,
+                                                 progress=progress_enabled())
     write_json_atomic(out / PLANNER_FILE, {"adapter": _relative(path, out)})
 
 
 def planner_test_examples(planner_cfg: DictConfig, episodes) -> list:
     """Scoring examples: every segment start of labelled episodes, queried as in the closed loop."""
-    from planner.config import TrainSettings
-
-    return _examples(planner_config(planner_cfg), episodes, TrainSettings())
+    return learned_planner(planner_cfg).examples(episodes)
 
 
 def _relative(path: Path, root: Path) -> str:
@@ -294,8 +279,5 @@ def _resolve(stage_dir: Path) -> Path:
 
 def load_planner(planner_cfg: DictConfig, base_stage: Path, finetune_stage: Path | None):
     """The planner: the base, plus the LoRA adapter when finetuned."""
-    from planner.planner import Planner
-
-    cfg = planner_config(planner_cfg)
     adapter = None if finetune_stage is None else _resolve(finetune_stage)
-    return Planner(cfg, _resolve(base_stage), adapter)
+    return learned_planner(planner_cfg).load(_resolve(base_stage), adapter)

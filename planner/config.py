@@ -1,4 +1,4 @@
-"""Typed planner configuration: model kind and sizes, training and LoRA settings (one YAML each)."""
+"""Typed planner settings: model kind (fixed by the planner.llava class a config names), sizes, training, LoRA."""
 
 from __future__ import annotations
 

@@ -77,9 +77,10 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
+    from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
-    cfg = PlannerConfig.from_dict(OmegaConf.to_container(OmegaConf.load(args.config), resolve=True))
+    cfg = instantiate(OmegaConf.load(args.config)).config  # the config's _target_ fixes the model
     res = run(cfg, Path(args.cache_dir), args.pretrain_episodes, args.demos, args.heldout)
     print(json.dumps({k: v for k, v in res.items() if not k.endswith("_log")}, indent=2))
     print("finetune log:", json.dumps(res["finetune_log"]))

@@ -129,10 +129,12 @@ def test_yaml_configs_instantiate_and_reject_typos():
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
+    from planner.llava import LlavaPlanner
+
     for name in ("tiny_llava", "tiny_llava_next", "llava_next_8b"):
-        cfg = instantiate(OmegaConf.load(CONF / f"{name}.yaml"))
-        assert isinstance(cfg, PlannerConfig) and cfg.kind == name
-    big = instantiate(OmegaConf.load(CONF / "llava_next_8b.yaml"))
+        planner = instantiate(OmegaConf.load(CONF / f"{name}.yaml"))  # the class fixes the model
+        assert isinstance(planner, LlavaPlanner) and planner.config.kind == name
+    big = instantiate(OmegaConf.load(CONF / "llava_next_8b.yaml")).config
     assert (big.lora.r, big.lora.alpha, big.finetune.lr, big.finetune.epochs) == (128, 256, 2e-5, 2)
     assert (big.finetune.schedule, big.finetune.warmup_ratio) == ("cosine", 0.08)
     with pytest.raises(ValueError, match="unknown option"):

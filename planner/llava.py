@@ -1,0 +1,94 @@
+"""The learned planners a config names: one class per LLaVA model, which trains, keys and loads it.
+
+``conf/planner/<name>.yaml`` names one of these classes as its ``_target_``; its keys are the
+options of :class:`planner.config.PlannerConfig` (sizes, tokenizer, both training stages, LoRA),
+except ``kind``, which the class fixes. The pipeline calls :meth:`LlavaPlanner.pretrain`,
+:meth:`LlavaPlanner.finetune` and :meth:`LlavaPlanner.load` with the stage folders it owns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import typing
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+from planner.config import PlannerConfig, TrainSettings
+
+
+def _options_signature() -> inspect.Signature:
+    """PlannerConfig's fields but ``kind``, keyword-only and typed (what a config may set)."""
+    hints = typing.get_type_hints(PlannerConfig)
+    params = [inspect.Parameter(
+        f.name, inspect.Parameter.KEYWORD_ONLY, annotation=hints[f.name],
+        default=f.default if f.default is not dataclasses.MISSING else f.default_factory())
+        for f in dataclasses.fields(PlannerConfig) if f.name != "kind"]
+    return inspect.Signature(params)
+
+
+class LlavaPlanner:
+    """A LLaVA-family planner: its settings, base pretraining, LoRA finetuning and the trained model."""
+
+    kind: ClassVar[str]  # the model (planner.models builds or loads it)
+    learned: ClassVar[bool] = True  # trained in the pipeline's planner stages (the oracle is not)
+    __signature__ = _options_signature()  # the options below, as validation and Hydra see them
+
+    def __init__(self, **options: Any) -> None:
+        self.config = PlannerConfig(kind=self.kind, **options)
+
+    @property
+    def view(self) -> str:
+        """The camera view the planner sees."""
+        return self.config.view
+
+    def base_spec(self) -> dict[str, Any]:
+        """What makes the base model (finetuning settings excluded): the base stage's key."""
+        return {"model": self.config.model_dict()}
+
+    def examples(self, episodes: Sequence, settings: TrainSettings | None = None) -> list:
+        """Boundary examples of episodes carrying their segments and instructions."""
+        from planner.train import training_examples
+
+        return training_examples(episodes, settings or TrainSettings(), self.config.view)
+
+    def pretrain(self, episodes: Sequence, out_dir: Path, *, extra_corpus: Sequence[str] = (),
+                 progress: bool = True) -> Path:
+        """The base planner in ``out_dir`` (a tiny model trained here) or the real checkpoint's folder."""
+        from planner.train import pretrain_base
+
+        return pretrain_base(self.config, self.examples(episodes, self.config.pretrain), out_dir,
+                             extra_corpus=list(extra_corpus), progress=progress)
+
+    def finetune(self, base_dir: Path, episodes: Sequence, out_dir: Path, *, seed: int,
+                 progress: bool = True) -> Path:
+        """The LoRA adapter of the base in ``base_dir`` trained on ``episodes``, in ``out_dir``."""
+        from planner.train import finetune_lora
+
+        return finetune_lora(self.config, base_dir, self.examples(episodes, self.config.finetune), out_dir,
+                             seed=seed, progress=progress)
+
+    def load(self, base_dir: Path, adapter_dir: Path | None = None):
+        """The trained planner (:class:`planner.planner.Planner`): the base, plus the adapter if given."""
+        from planner.planner import Planner
+
+        return Planner(self.config, base_dir, adapter_dir)
+
+
+class TinyLlava(LlavaPlanner):
+    """Tiny LLaVA (tiny Llama + CLIP tower or frozen EfficientNet-Lite0), pretrained here on CPU."""
+
+    kind = "tiny_llava"
+
+
+class TinyLlavaNext(LlavaPlanner):
+    """Tiny LLaVA-NeXT: as TinyLlava, plus AnyRes tiling over ``image_grid_pinpoints``."""
+
+    kind = "tiny_llava_next"
+
+
+class LlavaNext8B(LlavaPlanner):
+    """llama3-llava-next-8b from a local transformers-format folder (not pretrained here)."""
+
+    kind = "llava_next_8b"
