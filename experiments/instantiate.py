@@ -1,105 +1,98 @@
-"""Generic component instantiation: runtime objects go to whichever targets ask for them.
+"""Build a component from its config node; what exists only at run time is passed explicitly.
 
-A component config is a ``_target_`` node (often ``_partial_: true``). Objects that only exist at run
-time (the sub-task database, the encoder, ...) are offered as named *providers*; a provider is called
-(and so built) only when the target's signature has a parameter of that name the config leaves
-unset. No component is special-cased: a new decomposer that wants ``encoder`` gets it by naming it.
+A component config is a ``_target_`` node (often ``_partial_: true``) naming the class or factory
+that builds the component; its keys are that target's options. Everything else reaches the
+target at its call site, by keyword:
+
+* the run's *runtime objects*, one name each (:data:`RUNTIME_OBJECTS`): ``database`` (the sub-task
+  database of the training episodes), ``encoder`` (the visual encoder) and ``cache`` (the embedding
+  cache). A component takes one by having a parameter of that name, which its config leaves unset;
+  the pipeline passes exactly those (``experiments.pipeline.Run.runtime``). Other components are
+  composed in the config, not passed: ``backend: ${index}`` hands RDD the ``index`` group's choice.
+* the call site's own arguments (``task=`` for the env, ``plans=`` for the oracle planner).
+
+A parameter without a default that neither the config, the runtime objects nor the call site
+fill fails here, before the target runs, naming the component and the parameter.
 """
 
 from __future__ import annotations
 
 import functools
 import inspect
-from collections.abc import Callable, Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 from omegaconf import DictConfig
 
-Provider = Callable[[], Any]
-HYDRA_KEYS = {"_target_", "_partial_", "_recursive_", "_convert_", "_args_"}
+from experiments.validate import ConfigError, check_component_node, target_callable
+
+# What each runtime object is (for messages); the names are the only ones a component may use.
+RUNTIME_OBJECTS: dict[str, str] = {
+    "database": "the sub-task database of the training episodes",
+    "encoder": "the run's visual encoder (the encoder group)",
+    "cache": "the on-disk embedding cache",
+}
 
 
-def target_callable(node: DictConfig, group: str) -> Callable[..., Any]:
-    """The callable named by ``node._target_``, with an error naming the group when it is wrong."""
-    from hydra.utils import get_object
-
-    target = node.get("_target_") if isinstance(node, DictConfig) else None
-    if not target:
-        raise ValueError(f"config group {group!r}: the selected option has no _target_")
+def _parameters(node: DictConfig, group: str) -> Mapping[str, inspect.Parameter]:
+    fn = target_callable(node, group)
     try:
-        return get_object(str(target))
-    except Exception as exc:  # hydra wraps import errors in its own types
-        raise ImportError(f"config group {group!r}: cannot import _target_ {target!r}: {exc}") from exc
-
-
-def _signature(fn: Callable[..., Any]) -> inspect.Signature | None:
-    try:
-        return inspect.signature(fn)
+        return inspect.signature(fn).parameters
     except (TypeError, ValueError):
-        return None
+        return {}
 
 
-def wanted_providers(node: DictConfig, group: str, providers: Mapping[str, Provider]) -> list[str]:
-    """Names of providers the target takes as parameters that the config leaves unset (or null)."""
-    sig = _signature(target_callable(node, group))
-    if sig is None:
-        return []
-    out = []
-    for name in sig.parameters:
-        if name in providers and node.get(name) is None:
-            out.append(name)
-    return out
+def runtime_names(node: DictConfig, group: str) -> tuple[str, ...]:
+    """The runtime objects the component of ``node`` takes (its parameters named in RUNTIME_OBJECTS)."""
+    params = _parameters(node, group)
+    names = tuple(name for name in RUNTIME_OBJECTS if name in params)
+    for name in names:
+        if node.get(name) is not None:
+            raise ConfigError(f"{group}.{name}: `{name}` is a runtime object ({RUNTIME_OBJECTS[name]}) "
+                              f"that the run passes to {node._target_}; remove it from the config")
+    return names
 
 
-def check_component(node: DictConfig, group: str) -> None:
-    """Fail with a clear message when the config sets a key the target does not accept."""
-    sig = _signature(target_callable(node, group))
-    if sig is None:
-        return
-    params = sig.parameters
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-        return
-    unknown = sorted(k for k in node if k not in HYDRA_KEYS and k not in params)
-    if unknown:
-        raise ValueError(
-            f"config group {group!r} ({node._target_}): unknown option(s) {unknown}; "
-            f"the target accepts {sorted(p for p in params if p != 'self')}"
-        )
+def check_call(node: DictConfig, group: str, given: Iterable[str] = ()) -> None:
+    """Fail naming the component and parameter when a required parameter would be left unfilled.
+
+    ``given`` are the names the call site passes (runtime objects and its own arguments).
+    """
+    given = set(given)
+    for name, p in _parameters(node, group).items():
+        if p.kind in (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD) or name == "self":
+            continue
+        if p.default is inspect.Parameter.empty and name not in given and node.get(name) is None:
+            raise ConfigError(
+                f"{group} ({node._target_}): parameter {name!r} is not set by the config and is not a "
+                f"runtime object the run passes (those are {', '.join(RUNTIME_OBJECTS)}: name the "
+                "parameter after one of them, or give it a default)")
 
 
 def component_factory(node: DictConfig, group: str) -> functools.partial:
-    """The ``_target_`` with the config's options bound; the caller passes the runtime objects."""
+    """The ``_target_`` with the config's options bound; the caller passes the rest."""
     from hydra.utils import instantiate
 
-    check_component(node, group)
+    check_component_node(group, node)
     partial = instantiate(node, _partial_=True)
     if not isinstance(partial, functools.partial):
         raise TypeError(f"config group {group!r}: {node._target_} did not give a partial")
     return partial
 
 
-def instantiate_component(
-    node: DictConfig,
-    group: str,
-    providers: Mapping[str, Provider] | None = None,
-    **kwargs: Any,
-) -> Any:
-    """Instantiate ``node``; runtime objects from ``providers`` fill the parameters it asks for.
+def instantiate_component(node: DictConfig, group: str, runtime: Mapping[str, Any] | None = None,
+                          **kwargs: Any) -> Any:
+    """Build the component of ``node`` with exactly the runtime objects it takes, and ``kwargs``.
 
-    ``kwargs`` are passed as given (they override config values). When the config is ``_partial_``
-    the partial is completed here, so the caller always gets the finished object.
+    ``runtime`` must hold every runtime object the target takes (:func:`runtime_names`) and no
+    other; ``kwargs`` are the call site's own arguments (they override config values).
     """
-    from hydra.utils import instantiate
-
-    providers = providers or {}
-    check_component(node, group)
-    extra = dict(kwargs)
-    for name in wanted_providers(node, group, providers):
-        if name not in extra:
-            extra[name] = providers[name]()
-    # Build a partial from the config, then call it with the runtime objects: they never pass
-    # through OmegaConf (which would copy or reject them).
-    partial = instantiate(node, _partial_=True)
-    if not isinstance(partial, functools.partial):
-        raise TypeError(f"config group {group!r}: {node._target_} did not give a partial")
-    return partial(**extra)
+    runtime = dict(runtime or {})
+    wanted = runtime_names(node, group)
+    if set(runtime) != set(wanted):
+        raise TypeError(f"{group} ({node._target_}) takes the runtime objects {list(wanted)}, "
+                        f"but the caller passed {sorted(runtime)}")
+    check_call(node, group, [*runtime, *kwargs])
+    # A partial from the config, called with the runtime objects: they never pass through
+    # OmegaConf (which would copy or reject them).
+    return component_factory(node, group)(**runtime, **kwargs)

@@ -20,11 +20,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import components as comp
-from experiments.instantiate import (
-    instantiate_component,
-    target_callable,
-    wanted_providers,
-)
+from experiments.instantiate import check_call, instantiate_component, runtime_names
 from experiments.logs import progress, quiet_libraries, show_progress, stage_lines
 from experiments.results import (
     RESULTS_FILE,
@@ -34,7 +30,7 @@ from experiments.results import (
     per_task_success,
 )
 from experiments.stages import StageCache, read_json, spec_key, stage_code_key, write_json_atomic
-from experiments.validate import validate_config
+from experiments.validate import target_callable, validate_config
 from rdd.data.episode import Episode
 
 log = logging.getLogger(__name__)
@@ -171,7 +167,7 @@ class Run:
         return self._encoder_key
 
     def embedding_cache(self):
-        """The shared on-disk embedding cache."""
+        """The shared on-disk embedding cache (the runtime object ``cache``)."""
         return comp.embedding_cache(Path(self.cfg.paths.cache_dir) / "embeddings")
 
     # --- stages ----------------------------------------------------------------------------------
@@ -240,7 +236,8 @@ class Run:
     def labeler(self):
         """The labeller of decomposed demonstrations, shared by every decomposer (built once)."""
         if self._labeler is None:
-            self._labeler = instantiate_component(self.cfg.labeler, "labeler", self.providers())
+            self._labeler = instantiate_component(self.cfg.labeler, "labeler",
+                                                  self.runtime(self.cfg.labeler, "labeler"))
         return self._labeler
 
     def train_labeler(self):
@@ -283,28 +280,18 @@ class Run:
             self._database_key = key
         return self._database
 
-    def providers(self) -> dict[str, Any]:
-        """Runtime objects a component may ask for by parameter name."""
-        return {
-            "database": self.database,
-            "encoder": self.encoder,
-            "views": lambda: tuple(self.views),
-            "cache": self.embedding_cache,
-            "embedding_cache": self.embedding_cache,
-            # The `index` group's retrieval backend, for decomposers that leave `backend` unset.
-            "backend": lambda: instantiate_component(self.cfg.index, "index"),
-            "index": lambda: instantiate_component(self.cfg.index, "index"),
-        }
+    def runtime(self, node: DictConfig, group: str) -> dict[str, Any]:
+        """The runtime objects the component of ``node`` takes, each under its one name."""
+        build = {"database": self.database, "encoder": self.encoder, "cache": self.embedding_cache}
+        return {name: build[name]() for name in runtime_names(node, group)}
 
     def planner_learned(self) -> bool:
         """Whether the planner is a trained model (base + LoRA stages) rather than the oracle."""
         return bool(getattr(target_callable(self.cfg.planner, "planner"), "learned", True))
 
-    def decomposer_wants(self) -> list[str]:
-        """Runtime objects the selected decomposer takes (empty when nothing is decomposed)."""
-        if not finetunes(self.cfg) or not self.planner_learned():
-            return []
-        return wanted_providers(self.cfg.decomposer, "decomposer", self.providers())
+    def decomposes(self) -> bool:
+        """Whether this run decomposes the validation demos (to finetune a learned planner)."""
+        return finetunes(self.cfg) and self.planner_learned()
 
     def runtime_key_parts(self, group: str) -> dict[str, Any]:
         """What a component's output depends on besides its config: the runtime objects it takes."""
@@ -312,16 +299,12 @@ class Run:
         parts: dict[str, Any] = {group: self.node(group)}
         if node is None or not node.get("_target_"):
             return parts
-        wants = wanted_providers(node, group, self.providers())
-        if "encoder" in wants or "database" in wants:
+        takes = runtime_names(node, group)
+        if "encoder" in takes or "database" in takes:
             parts["encoder"] = self.encoder_key()
-        if "database" in wants:
+        if "database" in takes:
             self.database()
             parts["database"] = self._database_key
-        if "backend" in wants or "index" in wants:
-            parts["index"] = self.node("index")
-        if "views" in wants:
-            parts["views"] = self.views
         return parts
 
     def val_window(self) -> tuple[int, int]:
@@ -342,7 +325,8 @@ class Run:
             spec = {"demos": expert_key, **parts}
 
             def build(tmp: Path, episodes=episodes, task=task) -> None:
-                decomposer = instantiate_component(self.cfg.decomposer, "decomposer", self.providers())
+                decomposer = instantiate_component(self.cfg.decomposer, "decomposer",
+                                                   self.runtime(self.cfg.decomposer, "decomposer"))
                 labeler = self.labeler()
                 out = []
                 for ep in progress(episodes, desc=f"decompose {task}", unit="demo"):
@@ -450,7 +434,15 @@ def finetunes(cfg: DictConfig) -> bool:
 
 def preflight(run: Run) -> None:
     """Cheap checks before any long work: the runtime objects needed (keys and types: validate_config)."""
-    if set(run.decomposer_wants()) & {"encoder", "database"}:
+    if not run.decomposes():
+        return
+    takes: set[str] = set()
+    for group in ("decomposer", "labeler"):
+        node = run.cfg[group]
+        names = runtime_names(node, group)
+        check_call(node, group, names)  # a parameter nothing fills fails now, not after the demos
+        takes |= set(names)
+    if takes & {"encoder", "database"}:
         run.encoder()  # a missing checkpoint fails here, at once
 
 

@@ -23,11 +23,24 @@ from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from experiments.instantiate import HYDRA_KEYS, target_callable
+HYDRA_KEYS = {"_target_", "_partial_", "_recursive_", "_convert_", "_args_"}
 
 
 class ConfigError(ValueError):
     """A key of the composed config is unknown or its value has the wrong type."""
+
+
+def target_callable(node: DictConfig, group: str) -> Callable[..., Any]:
+    """The callable named by ``node._target_``, with an error naming the group when it is wrong."""
+    from hydra.utils import get_object
+
+    target = node.get("_target_") if isinstance(node, DictConfig) else None
+    if not target:
+        raise ValueError(f"config group {group!r}: the selected option has no _target_")
+    try:
+        return get_object(str(target))
+    except Exception as exc:  # hydra wraps import errors in its own types
+        raise ImportError(f"config group {group!r}: cannot import _target_ {target!r}: {exc}") from exc
 
 
 def _fmt(value: Any) -> str:

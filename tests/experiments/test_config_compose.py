@@ -12,7 +12,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 import experiments.schemas  # noqa: F401  (registers base_config)
-from experiments.instantiate import check_component, instantiate_component
+from experiments.instantiate import RUNTIME_OBJECTS, instantiate_component, runtime_names
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 GROUPS = ("env", "encoder", "index", "decomposer", "labeler", "policy", "planner")
@@ -33,7 +33,8 @@ def test_every_group_has_options():
 
 
 @pytest.fixture(scope="module")
-def providers():
+def runtime():
+    """The run's runtime objects, each under its one name (a tiny database, the pixels encoder)."""
     from rdd.database import SubtaskDatabase
     from rdd.encoders import load_encoder
 
@@ -46,20 +47,17 @@ def providers():
                                            "views": ["front", "wrist"],
                                            "calibration": {"chosen": {"alpha": 0.5, "min_len": 2,
                                                                       "max_len": None}}})
-    def index():
-        from rdd.index import load_index
+    return {"encoder": enc, "database": db, "cache": None}
 
-        return load_index("exact")
 
-    return {"encoder": lambda: enc, "database": lambda: db, "cache": lambda: None,
-            "views": lambda: ("front", "wrist"), "index": index, "backend": index,
-            "plans": lambda: {"open_drawer": {0: ["reach for the top drawer handle"]}},
-            "task": lambda: "open_drawer"}
+# What the pipeline's call sites pass besides runtime objects (experiments/components.py, pipeline.py).
+CALL_SITE = {"env": {"task": "open_drawer"},
+             "planner": {"plans": {"open_drawer": {0: ["reach for the top drawer handle"]}}}}
 
 
 @pytest.mark.parametrize("group,option", [(g, o) for g in GROUPS for o in _options(g)])
-def test_option_composes_and_instantiates(group: str, option: str, providers):
-    from experiments.validate import validate_config
+def test_option_composes_and_instantiates(group: str, option: str, runtime):
+    from experiments.validate import target_callable, validate_config
 
     cfg = _compose([f"{group}={option}", "paths.cache_dir=/tmp/unused"])
     validate_config(cfg)  # every key of the option is a parameter of its target, of its type
@@ -67,7 +65,10 @@ def test_option_composes_and_instantiates(group: str, option: str, providers):
     if not node or not node.get("_target_"):
         assert group == "decomposer" and option == "none"  # the w/o-finetune planner
         return
-    check_component(node, group)
+    takes = runtime_names(node, group)
+    assert set(takes) <= set(RUNTIME_OBJECTS)
+    if group not in ("decomposer", "labeler"):
+        assert takes == (), f"only decomposers and labelers get runtime objects, {group}={option} asks {takes}"
     if group == "policy":
         # a training factory: the pipeline passes the episodes, labeller and folder at the call site
         from experiments.instantiate import component_factory
@@ -75,14 +76,32 @@ def test_option_composes_and_instantiates(group: str, option: str, providers):
         factory = component_factory(node, group)
         assert {"episodes", "labeler", "out_dir"} <= set(inspect.signature(factory).parameters)
         return
+    target = target_callable(node, group)
+    call = CALL_SITE.get(group, {}) if not getattr(target, "learned", False) else {}
     try:
-        obj = instantiate_component(node, group, providers)
+        obj = instantiate_component(node, group, {n: runtime[n] for n in takes}, **call)
     except FileNotFoundError as exc:
         # Components whose weights are not on this machine say where to put them.
         msg = str(exc)
         assert any(w in msg for w in ("checkpoint", "weights", "RDD_WEIGHTS_DIR", "path")), msg
         return
     assert obj is not None
+    for name in takes:  # the runtime object reached the component as given
+        assert getattr(obj, name) is runtime[name]
+
+
+@pytest.mark.parametrize("option", ["tiny_llava", "tiny_llava_next", "llava_next_8b"])
+def test_learned_planner_targets_build_the_model_their_file_names(option: str):
+    """The class a planner option names fixes the model; its settings (and so the base key) are the YAML's."""
+    from planner.config import PlannerConfig
+
+    node = _compose([f"planner={option}", "paths.cache_dir=/tmp/unused"]).planner
+    planner = instantiate_component(node, "planner")
+    assert planner.learned and planner.config.kind == option
+    options = {k: v for k, v in OmegaConf.to_container(node, resolve=True).items() if k != "_target_"}
+    expected = PlannerConfig.from_dict({"kind": option, **options})
+    assert planner.base_spec() == {"model": expected.model_dict()}
+    assert planner.config.to_dict() == expected.to_dict()
 
 
 @pytest.mark.parametrize("experiment", _options("experiment"))

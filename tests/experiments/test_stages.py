@@ -1,4 +1,4 @@
-"""Stage cache: keyed by spec, built once, atomic, and generic component instantiation."""
+"""Stage cache: keyed by spec, built once, atomic."""
 
 from __future__ import annotations
 
@@ -6,9 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from omegaconf import OmegaConf
 
-from experiments.instantiate import check_component, instantiate_component, wanted_providers
 from experiments.stages import StageCache, spec_key
 
 
@@ -50,35 +48,6 @@ def test_failed_build_leaves_nothing(tmp_path: Path):
 def test_spec_key_rejects_objects():
     with pytest.raises(TypeError, match="cannot put"):
         spec_key({"a": object()})
-
-
-def test_runtime_objects_go_only_where_asked():
-    called = []
-
-    def provider():
-        called.append(1)
-        from rdd.encoders import load_encoder
-
-        return load_encoder("pixels", size=4)
-
-    providers = {"encoder": provider}
-    uniform = OmegaConf.create({"_target_": "rdd.decomposers.uniform.UniformDecomposer", "n_segments": 3})
-    assert wanted_providers(uniform, "decomposer", providers) == []
-    dec = instantiate_component(uniform, "decomposer", providers)
-    assert dec.n_segments == 3 and called == []
-    uvd = OmegaConf.create({"_target_": "rdd.decomposers.uvd.UVDDecomposer", "_partial_": True,
-                            "min_interval": 5})
-    assert wanted_providers(uvd, "decomposer", providers) == ["encoder"]
-    dec = instantiate_component(uvd, "decomposer", providers)
-    assert called == [1] and dec.encoder.name == "pixels"
-
-
-def test_unknown_option_is_a_clear_error():
-    node = OmegaConf.create({"_target_": "rdd.decomposers.uniform.UniformDecomposer", "n_segmnts": 3})
-    with pytest.raises(ValueError, match=r"decomposer.*n_segmnts"):
-        check_component(node, "decomposer")
-    with pytest.raises(ImportError, match="cannot import"):
-        check_component(OmegaConf.create({"_target_": "rdd.nope.Nothing"}), "decomposer")
 
 
 def test_code_fingerprint_follows_source_contents(tmp_path: Path):

@@ -262,7 +262,10 @@ def test_decomposer_configs_instantiate(world_db):
     _, db, demos = world_db
     fv, truth = demos["task_0"][0]
     for name, mode in (("rdd", "default"), ("rdd_ood", "ood")):
-        partial = instantiate(OmegaConf.load(CONF / f"{name}.yaml"))
+        # as the harness composes it: `backend: ${index}` is the index group's choice
+        cfg = OmegaConf.create({"index": OmegaConf.load(CONF.parent / "index" / "exact.yaml"),
+                                "decomposer": OmegaConf.load(CONF / f"{name}.yaml")})
+        partial = instantiate(cfg.decomposer)
         dec = partial(database=db, encoder=None, views=("front", "wrist"))
         assert isinstance(dec, RDDDecomposer) and dec.mode == mode
         result = dec.decompose_embeddings(fv)
