@@ -17,6 +17,7 @@ float32 dot-product rounding keeps the result equal to a dense float32 search.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -209,3 +210,34 @@ def ranges(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
         return np.zeros(0, dtype=np.int64)
     shift = np.repeat(starts - (np.cumsum(lens) - lens), lens)
     return np.arange(total, dtype=np.int64) + shift
+
+
+CELLS_FORMAT = 1  # bump when fit_cells changes what it computes: saved cells of older code are not read
+
+
+def save_cells(path: Path, cells: Cells) -> None:
+    """Write ``cells`` to ``path`` (.npz) atomically."""
+    from rdd.atomic import atomic_file
+
+    arrays = {f"{side}_{f}": getattr(getattr(cells, side), f) for side in ("begin", "end") for f in CAPS_FIELDS}
+    arrays.update({f: getattr(cells, f) for f in CELLS_FIELDS})
+    with atomic_file(path, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+def load_cells(path: Path, num_entries: int) -> Cells:
+    """Cells saved by :func:`save_cells`, checked against the database size."""
+    try:
+        with np.load(path) as z:
+            caps = {side: Caps(**{f: z[f"{side}_{f}"] for f in CAPS_FIELDS}) for side in ("begin", "end")}
+            cells = Cells(caps["begin"], caps["end"], **{f: z[f] for f in CELLS_FIELDS})
+    except (OSError, KeyError, ValueError) as exc:
+        raise ValueError(f"exact index cells file {path} is unreadable ({exc}); delete it to rebuild") from exc
+    if cells.perm.shape != (num_entries,) or cells.start[-1] != num_entries:
+        raise ValueError(f"exact index cells file {path} holds {cells.perm.size} entries, the database "
+                         f"{num_entries}; delete it to rebuild")
+    return cells
+
+
+CAPS_FIELDS = ("assign", "centres", "cos_t", "sin_t", "n_min", "n_max")
+CELLS_FIELDS = ("perm", "start", "jb", "je", "by_begin", "by_end", "by_end_start")

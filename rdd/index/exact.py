@@ -16,15 +16,18 @@ the surviving entries' products are computed and searched. Where the bounds rule
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from rdd.index._cap_bounds import Cells, fit_cells, ranges
+from rdd.index._cap_bounds import CELLS_FORMAT, Cells, fit_cells, load_cells, ranges, save_cells
 from rdd.index.base import NearestIndex
 from rdd.scoring import check_intervals, cosine_to_angular
+
+log = logging.getLogger(__name__)
 
 
 class ExactIndex(NearestIndex):
@@ -58,13 +61,30 @@ class ExactIndex(NearestIndex):
         b, e = begin * inv, end * inv
         n = b.shape[0]
         if self.prune and n >= 4 * self.cluster_size:
-            self._cells = fit_cells(b, e, self.cluster_size, self.seed)
+            self._cells = self._saved_cells(b, e, cache_dir, key)
             self._perm = self._cells.perm
         else:
             self._cells, self._perm = None, np.arange(n)
         # Stored in cell order; self._perm maps a stored position back to the caller's entry id.
         self._begin = np.ascontiguousarray(b[self._perm])
         self._end = np.ascontiguousarray(e[self._perm])
+
+    def _saved_cells(self, b: np.ndarray, e: np.ndarray, cache_dir: Path | None, key: str | None) -> Cells:
+        """The clusters of the entries: read from beside the database when saved there, else built
+        (and saved there; a folder that cannot be written only costs the next fit its clustering)."""
+        if cache_dir is None or key is None:
+            return fit_cells(b, e, self.cluster_size, self.seed)
+        n, d = b.shape
+        path = cache_dir / (f"exact-cells-v{CELLS_FORMAT}-n{n}-d{d}-c{self.cluster_size}-s{self.seed}-"
+                            f"{key[:16]}.npz")
+        if path.is_file():
+            return load_cells(path, n)
+        cells = fit_cells(b, e, self.cluster_size, self.seed)
+        try:
+            save_cells(path, cells)
+        except OSError as exc:
+            log.warning("exact index: could not save its clusters to %s (%s)", path, exc)
+        return cells
 
     def _chunk_entries(self, rows: int) -> int:
         """Entries per database chunk so that ``rows`` float32 rows per entry fit the memory budget."""

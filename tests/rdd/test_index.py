@@ -103,6 +103,38 @@ def test_annoy_forest_saved_beside_database(tmp_path):
     assert len(list(tmp_path.glob("*.ann"))) == 1
 
 
+def test_exact_clusters_saved_beside_database(tmp_path, monkeypatch):
+    """The exact index's clustering is saved beside the database, read back by the next fit (no
+    clustering then), keyed by the database and the options, and a damaged file is named."""
+    import rdd.index.exact as exact_module
+
+    rng = np.random.default_rng(5)
+    begin, end = clustered(rng, 600, 8), clustered(rng, 600, 8)
+    fv = clustered(rng, 30, 8)
+    s, e = np.arange(0, 28), np.arange(2, 30)
+    a = ExactIndex(cluster_size=8).fit(begin, end, cache_dir=tmp_path, key="abc123")
+    saved = list(tmp_path.glob("exact-cells-*.npz"))
+    assert len(saved) == 1
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the saved clusters were not used")
+
+    monkeypatch.setattr(exact_module, "fit_cells", refuse)
+    b = ExactIndex(cluster_size=8).fit(begin, end, cache_dir=tmp_path, key="abc123")
+    np.testing.assert_array_equal(b._perm, a._perm)
+    ids_a, dist_a = a.search_intervals(fv, s, e)
+    ids_b, dist_b = b.search_intervals(fv, s, e)
+    np.testing.assert_array_equal(ids_a, ids_b)
+    np.testing.assert_array_equal(dist_a, dist_b)
+    monkeypatch.undo()
+    ExactIndex(cluster_size=16).fit(begin, end, cache_dir=tmp_path, key="abc123")  # other options
+    ExactIndex(cluster_size=8).fit(begin, end, cache_dir=tmp_path, key="def456")  # other database
+    assert len(list(tmp_path.glob("exact-cells-*.npz"))) == 3
+    saved[0].write_bytes(b"not an npz")
+    with pytest.raises(ValueError, match="exact-cells-.*unreadable"):
+        ExactIndex(cluster_size=8).fit(begin, end, cache_dir=tmp_path, key="abc123")
+
+
 def test_load_index_by_module_name_and_errors():
     assert {"annoy", "exact", "faiss"} <= set(available_indexes())
     assert isinstance(load_index("exact"), ExactIndex)
