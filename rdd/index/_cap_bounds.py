@@ -16,7 +16,7 @@ float32 dot-product rounding keeps the result equal to a dense float32 search.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +34,10 @@ class Caps:
     sin_t: np.ndarray
     n_min: np.ndarray  # (K,) member lengths
     n_max: np.ndarray
+    centres32: np.ndarray = field(init=False, repr=False)  # for the (T, K) float32 product
+
+    def __post_init__(self) -> None:
+        self.centres32 = self.centres.astype(np.float32)
 
     def cos_bounds(self, f_unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(T, K) lower and upper bounds of the cosine between each unit frame and a cluster's members.
@@ -54,14 +58,6 @@ class Caps:
         up = np.where(cu >= 0, self.n_max * cu, self.n_min * cu) * f_norm[:, None]
         low = np.where(cl >= 0, self.n_min * cl, self.n_max * cl) * f_norm[:, None]
         return low, up
-
-    @property
-    def centres32(self) -> np.ndarray:
-        """The centres in float32 (for the (T, K) product)."""
-        if getattr(self, "_c32", None) is None:
-            self._c32 = self.centres.astype(np.float32)
-        return self._c32
-
 
 def spherical_kmeans(x: np.ndarray, k: int, seed: int, iters: int = 4, sketch_dim: int = 64,
                      sample: int = 8192) -> np.ndarray:
@@ -151,6 +147,7 @@ def choose_caps(x: np.ndarray, cluster_size: int, seed: int) -> tuple[np.ndarray
     width = [np.median(1.0 - caps.cos_t) for _, caps in fits]
     assign, caps = next(f for f, w in zip(reversed(fits), reversed(width), strict=True)
                         if w <= 2.0 * width[0] + 1e-12)
+    norms = None
     for _ in range(4):
         # Wide in angle (much wider than the median cap) or in length (longest > 2x shortest).
         angle = 1.0 - caps.cos_t > 4.0 * np.median(1.0 - caps.cos_t) + 1e-9
@@ -159,10 +156,14 @@ def choose_caps(x: np.ndarray, cluster_size: int, seed: int) -> tuple[np.ndarray
         wide = wide[: max(0, 1024 - angle.size)]
         if wide.size == 0:
             break
+        if norms is None and not angle[wide].all():
+            norms = np.linalg.norm(x, axis=1)
+        order = np.argsort(assign, kind="stable")  # each cluster's rows, without a pass per cluster
+        first = np.searchsorted(assign[order], wide)
+        last = np.searchsorted(assign[order], wide, side="right")
         assign = assign.copy()
-        norms = np.linalg.norm(x, axis=1)
-        for j in wide:  # split each wide cluster in two; new ids go at the end
-            rows = np.flatnonzero(assign == j)
+        for j, a, b in zip(wide, first, last, strict=True):  # split each in two; new ids at the end
+            rows = order[a:b]
             if angle[j]:
                 half = spherical_kmeans(x[rows], 2, seed + int(j)) == 1
             else:

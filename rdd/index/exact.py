@@ -28,6 +28,7 @@ from rdd.index.base import NearestIndex
 from rdd.scoring import check_intervals, cosine_to_angular
 
 log = logging.getLogger(__name__)
+DENSE_ABOVE = 0.6  # share of surviving entries above which pruning does not pay: search them all
 
 
 class ExactIndex(NearestIndex):
@@ -241,7 +242,7 @@ class ExactIndex(NearestIndex):
             alive[t] = (np.take(up_start, cells.jb[t], axis=1) + np.take(reach, cells.je[t], axis=1)).max(axis=0) >= 0
         keep = ranges(cells.start[:-1][alive], cells.start[1:][alive])
         # An empty set would mean a bound is wrong (the probed cell always survives): search all.
-        return keep if 0 < keep.size <= 0.6 * self.num_entries else None
+        return keep if 0 < keep.size <= DENSE_ABOVE * self.num_entries else None
 
     def _end_shortlist(self, unit_frames: np.ndarray) -> np.ndarray | None:
         """Entries of every end cluster whose cosine bound reaches some frame's certain best."""
@@ -253,7 +254,7 @@ class ExactIndex(NearestIndex):
         need = np.flatnonzero((up >= (low.max(axis=1) - 1e-6)[:, None]).any(axis=0))
         member_cells = cells.by_end[ranges(cells.by_end_start[need], cells.by_end_start[need + 1])]
         stored = ranges(cells.start[member_cells], cells.start[member_cells + 1])
-        return np.sort(self._perm[stored]) if stored.size <= 0.6 * self.num_entries else None
+        return np.sort(self._perm[stored]) if stored.size <= DENSE_ABOVE * self.num_entries else None
 
 
 class _Groups:
@@ -269,14 +270,6 @@ class _Groups:
 
     def __len__(self) -> int:
         return self.starts.size
-
-    def start(self, gi: int) -> int:
-        """The group's start frame."""
-        return int(self.s[self.starts[gi]])
-
-    def end_frames(self, gi: int) -> np.ndarray:
-        """The group's end frames (end - 1 of each candidate)."""
-        return self.e[self.starts[gi] : self.stops[gi]] - 1
 
     def rows(self, gi: int, se: np.ndarray) -> tuple[slice, int, np.ndarray]:
         """The group's candidate rows, start frame, and its ends' rows of ``se`` (a view when contiguous)."""
