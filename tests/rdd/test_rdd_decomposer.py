@@ -196,12 +196,17 @@ class PixelMeanEncoder(Encoder):
         return (images.reshape(images.shape[0], -1).astype(np.float32) / 255.0 - 0.5) @ self._w
 
 
+def _two_segment_episodes(rng) -> list[Episode]:
+    """Three 20-frame two-view episodes of random 8x8 images, each cut at frame 7 ("a", "b")."""
+    return [Episode(name=f"tr{i}", task="t", views={v: rng.integers(0, 256, (20, 8, 8, 3), dtype=np.uint8)
+                                                   for v in ("front", "wrist")},
+                    segments=[(0, 7), (7, 20)], instructions=["a", "b"]) for i in range(3)]
+
+
 def test_decompose_episode_matches_embeddings_and_checks_encoder():
     rng = np.random.default_rng(3)
     enc = PixelMeanEncoder()
-    train = [Episode(name=f"tr{i}", task="t", views={v: rng.integers(0, 256, (20, 8, 8, 3), dtype=np.uint8)
-                                                    for v in ("front", "wrist")},
-                     segments=[(0, 7), (7, 20)], instructions=["a", "b"]) for i in range(3)]
+    train = _two_segment_episodes(rng)
     db = SubtaskDatabase.build(train, None, enc)
     test_ep = train[1]
     dec = RDDDecomposer(db, encoder=enc)
@@ -225,9 +230,7 @@ def test_decompose_episode_matches_embeddings_and_checks_encoder():
 def test_raw_views_database_decomposes_with_raw_frame_vectors():
     rng = np.random.default_rng(4)
     enc = PixelMeanEncoder()
-    train = [Episode(name=f"tr{i}", task="t", views={v: rng.integers(0, 256, (20, 8, 8, 3), dtype=np.uint8)
-                                                    for v in ("front", "wrist")},
-                     segments=[(0, 7), (7, 20)], instructions=["a", "b"]) for i in range(3)]
+    train = _two_segment_episodes(rng)
     db = SubtaskDatabase.build(train, None, enc, normalize_views=False)
     raw = episode_frame_vectors(train[2], enc, normalize=False)
     np.testing.assert_allclose(db.end[-1], raw[19], rtol=1e-6)
