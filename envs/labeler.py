@@ -26,6 +26,7 @@ X held, rose >= 4 cm, mostly vertically      "lift the X"
 X held, over an open drawer D, not moving    "move the X above the D"
 X held, otherwise                            "move the X toward the Y" (Y nearest to X)
 X slid >= 3 cm sideways near the hand, unheld "push the X"
+hand turned from pointing sideways to down   "turn the gripper to point down"
 hand rose >= 4 cm, mostly vertically         "move the gripper up"
 hand came >= 3 cm nearer Y and stopped there "reach for the Y" (Y nearest to the hand);
                                              "move above the Y" when the hand is closed
@@ -71,6 +72,8 @@ BRAKING = 0.6  # ... and, above it, the share of the interval's peak speed that 
 SUPPORT_MARGIN = 0.02  # horizontal slack when deciding that Y is under X
 PUSH_REACH = 0.08  # a pushed object came this close to the hand
 DRAWER_REACH = 0.3  # an object this near (horizontally) an open drawer's handle is over the drawer
+TURN_DOWN = 45.0  # degrees the hand's approach axis came nearer straight down: a turn down
+POINTING_DOWN = 20.0  # ... ending within this many degrees of straight down
 
 
 @dataclass(frozen=True)
@@ -160,15 +163,23 @@ class PrivilegedLabeler:
         if episode.gripper_open is None:
             raise ValueError(f"episode {episode.name!r} lacks gripper_open, which the labeler needs")
         gripper_open = bool(episode.gripper_open[end - 1] >= 0.5)
-        return _describe(scene, pos, held, arts, hand, moving, gripper_open)
+        tilt = _tilt_from_down(np.asarray(episode.ee_poses[[start, end - 1], 3:7], dtype=np.float64))
+        return _describe(scene, pos, held, arts, hand, moving, gripper_open, tilt)
 
     def label_all(self, episode: Episode, segments: Sequence[Segment]) -> list[str]:
         """Labels of several intervals of one episode."""
         return [self.label(episode, s) for s in segments]
 
 
+def _tilt_from_down(quats: np.ndarray) -> np.ndarray:
+    """Degrees between the hand's approach axis (local z of xyzw ``quats``) and straight down."""
+    x, y = quats[:, 0], quats[:, 1]
+    approach_z = 1.0 - 2.0 * (x * x + y * y)
+    return np.degrees(np.arccos(np.clip(-approach_z, -1.0, 1.0)))
+
+
 def _describe(sc: _Scene, pos: np.ndarray, held: np.ndarray, arts: np.ndarray, hand: np.ndarray,
-              moving: bool, gripper_open: bool) -> str:
+              moving: bool, gripper_open: bool, tilt: np.ndarray | None = None) -> str:
     k = len(sc.labels)
     # 1. Articulations: the one that moved most (relative to its travel).
     if arts.shape[1]:
@@ -226,8 +237,13 @@ def _describe(sc: _Scene, pos: np.ndarray, held: np.ndarray, arts: np.ndarray, h
         j = int(np.argmax(moved))
         if moved[j] >= PUSHED:
             return f"push the {sc.labels[j]}"
-    # 5. Hand motion only.
+    # 5. Hand motion only. A turn from a sideways grasp (a drawer handle) to pointing down gets
+    # its own words: as "move the gripper up" its keyframe looked like a retreat above a placed
+    # object, and the policy anchored it on the item instead of the hand.
     delta = hand[-1] - hand[0]
+    if (tilt is not None and not moving and tilt[0] - tilt[1] >= TURN_DOWN
+            and tilt[1] <= POINTING_DOWN):
+        return "turn the gripper to point down"
     if delta[2] >= RISE and np.linalg.norm(delta[:2]) <= 0.5 * delta[2] and not moving:
         return "move the gripper up"
     if not k:

@@ -40,7 +40,8 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 # fingerprint is part of the stage's key. Code a stage reaches only through an upstream stage is
 # covered by that stage's key, which the downstream spec contains.
 STAGE_CODE: dict[str, tuple[str, ...]] = {
-    "demos": ("envs", "rdd/data"),
+    # The labeler and the expert checker do not make demos: editing them keeps the rendered episodes.
+    "demos": ("envs", "!envs/labeler.py", "!envs/check_expert.py", "rdd/data"),
     "expert_labels": ("envs/labeler.py", "rdd/retrieval_labeler.py", "rdd/segments.py",
                       "rdd/decomposers/expert.py"),
     "oracle_plans": ("envs", "rdd/decomposers/expert.py", "rdd/segments.py"),
@@ -79,14 +80,22 @@ def canonical(obj: Any) -> Any:
 
 @functools.cache
 def code_fingerprint(paths: tuple[str, ...], root: Path = REPO_ROOT) -> str:
-    """SHA-256 (16 hex digits) of the Python sources under ``paths`` (names and contents)."""
+    """SHA-256 (16 hex digits) of the Python sources under ``paths`` (names and contents).
+
+    A path starting with ``!`` leaves that file or folder out of the others.
+    """
     h = hashlib.sha256()
+    skip = [root / rel[1:] for rel in paths if rel.startswith("!")]
     for rel in paths:
+        if rel.startswith("!"):
+            continue
         base = root / rel
         if not base.exists():
             raise FileNotFoundError(f"stage code path {rel!r} is not in {root} (experiments.stages.STAGE_CODE)")
         files = [base] if base.is_file() else sorted(base.rglob("*.py"))
         for f in files:
+            if any(f == s or s in f.parents for s in skip):
+                continue
             h.update(str(f.relative_to(root)).encode() + b"\0")
             h.update(f.read_bytes() + b"\0")
     return h.hexdigest()[:16]

@@ -68,6 +68,25 @@ def test_code_fingerprint_follows_source_contents(tmp_path: Path):
     code_fingerprint.cache_clear()
 
 
+def test_code_fingerprint_leaves_out_excluded_files(tmp_path: Path):
+    from experiments.stages import code_fingerprint
+
+    (tmp_path / "pkg" / "sub").mkdir(parents=True)
+    (tmp_path / "pkg" / "a.py").write_text("x = 1\n")
+    (tmp_path / "pkg" / "labels.py").write_text("y = 1\n")
+    (tmp_path / "pkg" / "sub" / "b.py").write_text("z = 1\n")
+    paths = ("pkg", "!pkg/labels.py", "!pkg/sub")
+    first = code_fingerprint(paths, tmp_path)
+    (tmp_path / "pkg" / "labels.py").write_text("y = 2\n")
+    (tmp_path / "pkg" / "sub" / "b.py").write_text("z = 2\n")
+    code_fingerprint.cache_clear()
+    assert code_fingerprint(paths, tmp_path) == first
+    (tmp_path / "pkg" / "a.py").write_text("x = 2\n")
+    code_fingerprint.cache_clear()
+    assert code_fingerprint(paths, tmp_path) != first
+    code_fingerprint.cache_clear()
+
+
 def test_every_stage_key_covers_its_code(tmp_path: Path):
     from experiments.stages import STAGE_CODE, stage_code_key
 
