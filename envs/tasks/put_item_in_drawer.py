@@ -74,10 +74,13 @@ class PutItemInDrawer(Task):
         across = np.arctan2(w[1], w[0])
         across += np.pi * np.round((HOME_FINGER_YAW - across) / np.pi)
         yaw = yaw_of(orn) + np.pi / 2 * np.round((across - yaw_of(orn)) / (np.pi / 2))
-        # Turn the hand down while clear of the cabinet, before reaching over its top.
+        # Turn the hand down while clear of the cabinet, before reaching over its top, fingers
+        # across the drawer: a yaw fixed in the cabinet's frame (the drawer handle's), where the
+        # item's yaw made it depend on an object the hand is not at, and the hand's own yaw frame
+        # flips with the pull's finger sense (a policy then predicted it a half turn off).
         ee = self.scene.ee_pose()
         ready = np.array([ee[0], ee[1], self.cabinet.top_z + 0.12])
-        yield Waypoint(ready, top_down_quat(yaw), True, "move the gripper above the cabinet")
+        yield Waypoint(ready, top_down_quat(across), True, "move the gripper above the cabinet")
         yield from self.pick("item", pos, yaw, float(pos[2]), above=0.08, lift_z=float(pos[2]) + 0.1)
         tray = self._tray()
         # Let go a few centimetres up, so the hand stays above the drawer front panel.
