@@ -657,11 +657,12 @@ def _planner_eval(run: Run, results: dict[str, Any]) -> None:
     rows: list[dict[str, Any]] = []
     for task in run.eval_tasks:
         eps, test_key = run.expert_labels(task, "test", n)
-        spec = {"planner": planner_key, "base": info["base"], "test": test_key}
+        # rows: 2 since each row carries its goal (image-dependent boundaries are found from it)
+        spec = {"planner": planner_key, "base": info["base"], "test": test_key, "rows": 2}
 
         def build(tmp: Path, eps=eps) -> None:
             examples = comp.planner_test_examples(run.cfg.planner, eps)
-            out = [{"task": e.task, "episode": e.episode, "frame": int(e.frame),
+            out = [{"task": e.task, "episode": e.episode, "frame": int(e.frame), "goal": e.goal,
                     "previous": e.previous_instruction, "target": e.target} for e in examples]
             for name, planner in planners().items():
                 preds, hits = planner.hits(examples)
@@ -676,18 +677,37 @@ def _planner_eval(run: Run, results: dict[str, Any]) -> None:
                    planner_eval=_planner_eval_block(rows, run.eval_tasks, finetuned=adapter_dir is not None))
 
 
+def image_dependent(rows: list[dict[str, Any]]) -> list[bool]:
+    """Per boundary: whether its text cannot settle it, i.e. another boundary of the same task with
+    the same goal and previous instruction has a different target (only the image tells them apart)."""
+    targets: dict[tuple, set[str]] = {}
+    for r in rows:
+        targets.setdefault((r["task"], r["goal"], r["previous"]), set()).add(r["target"])
+    return [len(targets[(r["task"], r["goal"], r["previous"])]) > 1 for r in rows]
+
+
+def _rate(rows: list[dict[str, Any]], name: str) -> float | None:
+    return float(np.mean([r[f"{name}_hit"] for r in rows])) if rows else None
+
+
 def _planner_eval_block(rows: list[dict[str, Any]], tasks: list[str], finetuned: bool) -> dict[str, Any]:
     names = ["base", "finetuned"] if finetuned else ["base"]
+    for r, dep in zip(rows, image_dependent(rows), strict=True):
+        r["image_dependent"] = dep
+    dep_rows = [r for r in rows if r["image_dependent"]]
     per_task = {}
     for task in tasks:
         rs = [r for r in rows if r["task"] == task]
-        per_task[task] = {"boundaries": len(rs),
-                          **{n: float(np.mean([r[f"{n}_hit"] for r in rs])) if rs else None for n in names}}
+        ds = [r for r in rs if r["image_dependent"]]
+        per_task[task] = {"boundaries": len(rs), **{n: _rate(rs, n) for n in names},
+                          "image_dependent": {"boundaries": len(ds), **{n: _rate(ds, n) for n in names},
+                                              "which": sorted({(r["previous"], r["target"]) for r in ds})}}
     block: dict[str, Any] = {
         "per_task": per_task,
         "boundaries": len(rows),
-        **{f"{n}_exact_match": float(np.mean([r[f"{n}_hit"] for r in rows])) if rows else None
-           for n in names},
+        **{f"{n}_exact_match": _rate(rows, n) for n in names},
+        "image_dependent_boundaries": len(dep_rows),
+        **{f"{n}_image_dependent": _rate(dep_rows, n) for n in names},
         "misses": [r for r in rows if not r.get("finetuned_hit", r["base_hit"])],
     }
     return block

@@ -269,7 +269,7 @@ def planner_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
         return None
     by_key = _latest_per_method_seed(runs)
     tasks = _tasks_in_order(run.data["planner_eval"]["per_task"] for run in runs)
-    header = ["Method", "Planner", "All tasks ↑", *tasks]
+    header = ["Method", "Planner", "All tasks ↑", "Image-dependent ↑", *tasks]
     rows, means = [], []
     for m in _methods_in_order(runs):
         mruns = [r for (mm, _), r in by_key.items() if mm == m]
@@ -278,7 +278,9 @@ def planner_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
                 continue
             mean, std = mean_std([float(r.data["planner_eval"][f"{name}_exact_match"]) for r in mruns])
             means.append(mean)
-            row = [m, name, _pm(mean, std)]
+            dep = [r.data["planner_eval"].get(f"{name}_image_dependent") for r in mruns]
+            dep = [float(v) for v in dep if v is not None]
+            row = [m, name, _pm(mean, std), _pm(*mean_std(dep)) if dep else "–"]
             for task in tasks:
                 vals = [float(r.data["planner_eval"]["per_task"][task][name]) for r in mruns
                         if task in r.data["planner_eval"]["per_task"]]
@@ -288,8 +290,11 @@ def planner_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     bold = {(i, 2) for i, v in enumerate(means) if v == best}
     counts = sorted({int(r.data["planner_eval"]["boundaries"]) for r in runs})
     seeds = sorted({r.seed for r in runs})
+    deps = sorted({int(r.data["planner_eval"].get("image_dependent_boundaries", 0)) for r in runs})
     note = (f"Exact match (%) of the next instruction at {'/'.join(map(str, counts))} segment starts "
-            f"of held-out test-split episodes; {len(seeds)} seed(s) {seeds}; ± is the sample std over seeds.")
+            f"of held-out test-split episodes; {len(seeds)} seed(s) {seeds}; ± is the sample std over seeds. "
+            f"Image-dependent: the {'/'.join(map(str, deps))} of them whose goal and previous instruction "
+            "also precede another answer in the same task (only the image can settle them).")
     return Table(title, header, rows, bold, note)
 
 

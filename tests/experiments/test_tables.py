@@ -154,3 +154,38 @@ def test_paired_table_in_written_tables(tmp_path: Path):
             if line.startswith("| ")}
     assert "-100.0 | [-100.0, -100.0] | **yes** | 4" in rows["uvd"]
     assert "+0.0 | [+0.0, +0.0] | no | 4" in rows["expert"]
+
+
+def test_image_dependent_boundaries_and_their_planner_column(tmp_path: Path):
+    from experiments.pipeline import _planner_eval_block, image_dependent
+
+    def row(task, goal, prev, target, base, tuned):
+        return {"task": task, "episode": "e", "frame": 0, "goal": goal, "previous": prev,
+                "target": target, "base": "x", "base_hit": base, "finetuned": "y", "finetuned_hit": tuned}
+
+    # stack: after "lift" the same goal leads to "above the plate" once and "above the stack" once
+    # (image-dependent, 2 rows); the first step is text-settled. push: one goal, one answer each.
+    rows = [row("stack", "stack 2 red", "lift", "above the plate", False, True),
+            row("stack", "stack 2 red", "lift", "above the stack", False, False),
+            row("stack", "stack 2 red", None, "reach", True, True),
+            row("stack", "stack 3 red", "lift", "above the plate", False, True),
+            row("push", "push red", None, "move above red", True, True)]
+    assert image_dependent(rows) == [True, True, False, False, False]
+    block = _planner_eval_block(rows, ["stack", "push"], finetuned=True)
+    assert block["image_dependent_boundaries"] == 2
+    assert block["finetuned_image_dependent"] == 0.5 and block["base_image_dependent"] == 0.0
+    dep = block["per_task"]["stack"]["image_dependent"]
+    assert dep["boundaries"] == 2 and dep["which"] == [("lift", "above the plate"), ("lift", "above the stack")]
+    assert block["per_task"]["push"]["image_dependent"]["boundaries"] == 0
+
+    data = {"format": RESULTS_FORMAT, "status": "ok", "seed": 0,
+            "choices": {"experiment": "planner_eval", "decomposer": "expert"},
+            "overrides": ["decomposer=expert"], "planner_eval": json.loads(json.dumps(block))}
+    (tmp_path / "0").mkdir()
+    (tmp_path / "0" / "results.json").write_text(json.dumps(data))
+    md, _ = write_tables(tmp_path, tmp_path / "out")
+    lines = [line for line in md.splitlines() if line.startswith("| expert")]
+    assert "Image-dependent" in md
+    # finetuned: 4 of 5 right overall (80.0), 1 of 2 image-dependent (50.0); base 2 of 5, 0 of 2
+    assert lines[0].startswith("| expert | base | 40.0 ± 0.0 | 0.0 ± 0.0 |")
+    assert lines[1].startswith("| expert | finetuned | **80.0 ± 0.0** | 50.0 ± 0.0 |")
