@@ -29,7 +29,10 @@ WORLD_ANCHOR = "the table"
 # same colour: their heights differ by a plate's thickness only), and the height of what it
 # carries (in units of STACK_UNIT metres): "place onto the stack" lands one block higher on a
 # plate that carries two blocks than on one that carries one, and the plate alone cannot tell.
-STATE_DIM = 7
+# Then, the same on every anchor, the held object's yaw relative to the hand (sin, cos; zeros when
+# nothing is held): where a held shape must line up with a hole, the hand's turn depends on how the
+# shape sits in the hand, which the hole's anchor cannot see otherwise.
+STATE_DIM = 9
 STACK_UNIT = 0.1
 SUPPORT_MARGIN = 0.01  # metres of horizontal slack in the footprint test
 OBS_KEYS = ("ee_pose", "gripper_open", "object_positions", "object_quaternions",
@@ -92,6 +95,9 @@ def anchors_from_observation(obs: Mapping[str, Any]) -> Anchors:
         state[i, 5] = 1.0 if any(on[j] == i and j != held for j in range(k)) else 0.0
         state[i, 6] = _carried_height(i, on, held, opos, sizes) / STACK_UNIT
     state[k, 0] = 1.0 if held >= 0 else 0.0  # the gripper anchor: holding something
+    if 0 <= held < k:
+        in_hand = float(yaw_of(oquat[held]) - yaw_of(ee[3:7]))
+        state[:, 7], state[:, 8] = np.sin(in_hand), np.cos(in_hand)
     names = [object_label(o) for o in objects] + [GRIPPER_ANCHOR, WORLD_ANCHOR]
     pos = np.concatenate([opos, ee[None, :3], np.zeros((1, 3))])
     yaw = np.concatenate([yaw_of(oquat), [yaw_of(ee[3:7])], [0.0]])

@@ -161,6 +161,9 @@ class KeyframeBCPolicy(Policy):
     def from_checkpoint(cls, path: str | os.PathLike, text_cache_dir: str | os.PathLike | None = None) -> KeyframeBCPolicy:
         """Load a policy saved by :func:`train_policy`."""
         net, meta = load_checkpoint(Path(path))
+        if net.cfg.state_dim != STATE_DIM:
+            raise ValueError(f"{path}: policy trained on {net.cfg.state_dim} per-anchor state features, "
+                             f"this code makes {STATE_DIM} (policy.features.STATE_DIM); retrain it")
         return cls(net, shared_embedder(text_cache_dir), meta=meta, checkpoint=Path(path))
 
     def reset(self, goal: str) -> None:

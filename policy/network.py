@@ -25,7 +25,7 @@ class NetConfig:
 
     text_dim: int = 384
     proprio_dim: int = 8  # ee xyz + quat xyzw + gripper
-    state_dim: int = 7  # per-anchor extra state (policy.features.STATE_DIM)
+    state_dim: int = 9  # per-anchor extra state (policy.features.STATE_DIM)
     hidden: int = 96
     pos_sigma: float = 0.005  # metres; width of the mixture's position likelihood
     rot_kappa: float = 20.0  # concentration of the orientation likelihood

@@ -42,3 +42,13 @@ def test_a_held_block_is_not_part_of_the_pile():
     state = anchors_from_observation(_obs(held=2)).state
     assert np.isclose(state[0, 6] * STACK_UNIT, BLOCK, atol=1e-6)
     assert state[1, 6] == 0.0
+
+
+def test_every_anchor_sees_how_the_held_object_sits_in_the_hand():
+    obs = _obs(held=3)
+    turn = 0.3
+    obs["object_quaternions"][3] = [0.0, 0.0, np.sin(turn / 2), np.cos(turn / 2)]  # yaw 0.3 rad
+    state = anchors_from_observation(obs).state  # the hand's yaw is 0 (a half turn about x)
+    assert np.allclose(state[:, 7], np.sin(turn)) and np.allclose(state[:, 8], np.cos(turn))
+    free = anchors_from_observation(_obs(held=-1)).state
+    assert np.all(free[:, 7:9] == 0.0)
