@@ -57,6 +57,17 @@ def yaw_of(quaternion: np.ndarray) -> np.ndarray:
     return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
+def hand_yaw(quaternion: np.ndarray) -> np.ndarray:
+    """Heading of the hand (xyzw quaternions (..., 4)): the finger-opening axis's heading + 90 deg.
+
+    Equal to :func:`yaw_of` for a hand pointing down; unlike it, still defined for a hand pointing
+    sideways (a drawer-handle grasp), whose body x axis is vertical and has no heading.
+    """
+    q = np.asarray(quaternion, dtype=np.float64)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.arctan2(1 - 2 * (x * x + z * z), 2 * (x * y - w * z)) + np.pi / 2
+
+
 def _check(obs: Mapping[str, Any]) -> None:
     missing = [k for k in OBS_KEYS if k not in obs]
     if missing:
@@ -96,11 +107,11 @@ def anchors_from_observation(obs: Mapping[str, Any]) -> Anchors:
         state[i, 6] = _carried_height(i, on, held, opos, sizes) / STACK_UNIT
     state[k, 0] = 1.0 if held >= 0 else 0.0  # the gripper anchor: holding something
     if 0 <= held < k:
-        in_hand = float(yaw_of(oquat[held]) - yaw_of(ee[3:7]))
+        in_hand = float(yaw_of(oquat[held]) - hand_yaw(ee[3:7]))
         state[:, 7], state[:, 8] = np.sin(in_hand), np.cos(in_hand)
     names = [object_label(o) for o in objects] + [GRIPPER_ANCHOR, WORLD_ANCHOR]
     pos = np.concatenate([opos, ee[None, :3], np.zeros((1, 3))])
-    yaw = np.concatenate([yaw_of(oquat), [yaw_of(ee[3:7])], [0.0]])
+    yaw = np.concatenate([yaw_of(oquat), [hand_yaw(ee[3:7])], [0.0]])
     return Anchors(names, pos, yaw, state, np.concatenate([ee, [grip]]))
 
 

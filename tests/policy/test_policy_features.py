@@ -52,3 +52,19 @@ def test_every_anchor_sees_how_the_held_object_sits_in_the_hand():
     assert np.allclose(state[:, 7], np.sin(turn)) and np.allclose(state[:, 8], np.cos(turn))
     free = anchors_from_observation(_obs(held=-1)).state
     assert np.all(free[:, 7:9] == 0.0)
+
+
+def test_hand_heading_is_defined_for_a_sideways_grasp():
+    from envs.scene import gripper_quat, top_down_quat
+    from policy.features import hand_yaw, yaw_of
+
+    for psi in np.linspace(-3.0, 3.0, 7):  # pointing down: the body x axis's heading, as before
+        q = top_down_quat(psi)
+        assert np.isclose(np.angle(np.exp(1j * (hand_yaw(q) - yaw_of(q)))), 0.0, atol=1e-9)
+    # Pointing sideways along +x, fingers along +y, tilted by up to 1 degree: the body x axis is
+    # (nearly) vertical, so its heading swings; the hand's stays pi (fingers' heading + 90 deg).
+    headings = []
+    for tilt in np.radians([-1.0, -0.1, 0.0, 0.1, 1.0]):
+        approach = np.array([np.cos(tilt), 0.0, np.sin(tilt)])
+        headings.append(float(hand_yaw(gripper_quat(approach, np.array([0.0, 1.0, 0.0])))))
+    assert np.allclose(np.cos(headings), -1.0, atol=1e-6)
