@@ -244,9 +244,12 @@ def planner_base_spec(planner_cfg: DictConfig) -> dict[str, Any]:
     return learned_planner(planner_cfg).base_spec()
 
 
-def pretrain_planner(planner_cfg: DictConfig, episodes, corpus: Sequence[str], out: Path) -> None:
-    """Pretrain the base planner on the pretraining tasks' demos (its tokenizer also sees ``corpus``)."""
+def pretrain_planner(planner_cfg: DictConfig, episodes, corpus: Sequence[str], out: Path,
+                     vocabulary_episodes=()) -> None:
+    """Pretrain the base planner on the pretraining tasks' demos (its tokenizer also sees ``corpus``;
+    the slot words of ``vocabulary_episodes`` are saved with it for the finetune's slot swapping)."""
     path = learned_planner(planner_cfg).pretrain(episodes, out, extra_corpus=list(corpus),
+                                                 vocabulary_episodes=list(vocabulary_episodes),
                                                  progress=progress_enabled())
     write_json_atomic(out / PLANNER_FILE, {"base": _relative(path, out)})
 

@@ -356,7 +356,8 @@ class Run:
         eps, data_key = self.labelled_set(
             self.pretrain_tasks, "train", int(self.cfg.data.pretrain_episodes_per_task))
         # The tokenizer also covers the evaluation tasks' goals and labeller vocabulary (the paper's
-        # planner is a pretrained VLM that already knows the words); no evaluation demo is trained on.
+        # planner is a pretrained VLM that already knows the words); no evaluation demo is trained on,
+        # only their slot words (colours, drawers, shapes) join the finetune's slot swapping.
         vocab_eps, vocab_key = self.labelled_set(
             self.eval_tasks, "train", int(self.cfg.data.train_episodes_per_task))
         corpus = sorted({s for e in eps + vocab_eps for s in e.instructions}
@@ -365,7 +366,7 @@ class Run:
                 "vocabulary": vocab_key}
         return self.cache.get_or_build(
             "planner_base", spec,
-            lambda tmp: comp.pretrain_planner(self.cfg.planner, eps, corpus, tmp))
+            lambda tmp: comp.pretrain_planner(self.cfg.planner, eps, corpus, tmp, vocab_eps))
 
     def planner_stage(self) -> tuple[Path, Path | None, str, dict[str, Any]]:
         """The planner for this run: the base, or the base LoRA-finetuned on the decomposed demos.

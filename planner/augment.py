@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import re
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -32,11 +32,22 @@ def _words(text: str | None) -> set[str]:
 
 def slot_words(examples: Sequence[PlannerExample]) -> dict[str, list[str]]:
     """Per task, the goal words that vary across its goals and occur in its instructions (sorted)."""
+    return _slot_words((ex.task, ex.goal, [ex.target, ex.previous_instruction]) for ex in examples)
+
+
+def slot_vocabulary(episodes: Iterable) -> dict[str, list[str]]:
+    """:func:`slot_words` of labelled episodes (``task``, ``goal``, ``instructions``): the slot words
+    a base planner knows per task from its vocabulary corpus, beyond the few finetuning demos'."""
+    return _slot_words((ep.task, ep.goal, list(ep.instructions)) for ep in episodes)
+
+
+def _slot_words(items: Iterable[tuple[str, str, Sequence[str | None]]]) -> dict[str, list[str]]:
     goals: dict[str, set[str]] = defaultdict(set)
     said: dict[str, set[str]] = defaultdict(set)
-    for ex in examples:
-        goals[ex.task].add(ex.goal)
-        said[ex.task] |= _words(ex.target) | _words(ex.previous_instruction)
+    for task, goal, texts in items:
+        goals[task].add(goal)
+        for text in texts:
+            said[task] |= _words(text)
     out = {}
     for task, gs in goals.items():
         word_sets = [_words(g) for g in gs]
@@ -52,12 +63,15 @@ def _rename(text: str | None, mapping: dict[str, str]) -> str | None:
 
 
 def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
-              pool: str = "task") -> list[PlannerExample]:
+              pool: str = "task", vocabulary: Mapping[str, Sequence[str]] | None = None
+              ) -> list[PlannerExample]:
     """``examples`` followed by ``copies`` slot-renamed copies of each example that has slot words.
 
     ``pool``: rename onto the example's own task's slot words ("task") or every task's ("all").
-    Deterministic in ``seed``. Examples without slot words (or a pool too small to rename them
-    injectively) get no copies.
+    ``vocabulary``: further slot words per task (:func:`slot_vocabulary` of the base planner's
+    corpus) joined to the pools, so that copies also say words no finetuning demo used (a colour
+    only the evaluation goal names). Deterministic in ``seed``. Examples without slot words (or a
+    pool too small to rename them injectively) get no copies.
     """
     if copies < 0:
         raise ValueError(f"slot_swap copies must be >= 0, got {copies}")
@@ -67,10 +81,11 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
     if copies == 0:
         return out
     slots = slot_words(examples)
-    every = sorted(set().union(*slots.values())) if slots else []
+    pools = {t: sorted(set(w) | set((vocabulary or {}).get(t, ()))) for t, w in slots.items()}
+    every = sorted(set().union(*pools.values())) if pools else []
     rng = np.random.default_rng(seed)
     for ex in examples:
-        names = slots.get(ex.task, []) if pool == "task" else every
+        names = pools.get(ex.task, []) if pool == "task" else every
         said = _words(ex.goal) | _words(ex.target) | _words(ex.previous_instruction)
         present = [w for w in slots.get(ex.task, []) if w in said]
         if not present or len(names) < len(present):

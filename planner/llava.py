@@ -54,12 +54,18 @@ class LlavaPlanner:
         return training_examples(episodes, settings or TrainSettings(), self.config.view)
 
     def pretrain(self, episodes: Sequence, out_dir: Path, *, extra_corpus: Sequence[str] = (),
-                 progress: bool = True) -> Path:
-        """The base planner in ``out_dir`` (a tiny model trained here) or the real checkpoint's folder."""
+                 vocabulary_episodes: Sequence = (), progress: bool = True) -> Path:
+        """The base planner in ``out_dir`` (a tiny model trained here) or the real checkpoint's folder.
+
+        ``vocabulary_episodes``: labelled episodes whose words the base knows without training on
+        them (their slot words join the finetune's slot swapping).
+        """
+        from planner.augment import slot_vocabulary
         from planner.train import pretrain_base
 
         return pretrain_base(self.config, self.examples(episodes, self.config.pretrain), out_dir,
-                             extra_corpus=list(extra_corpus), progress=progress)
+                             extra_corpus=list(extra_corpus),
+                             slot_vocabulary=slot_vocabulary(vocabulary_episodes), progress=progress)
 
     def finetune(self, base_dir: Path, episodes: Sequence, out_dir: Path, *, seed: int,
                  progress: bool = True) -> Path:

@@ -38,6 +38,7 @@ from rdd.atomic import write_json_atomic
 
 CONFIG_FILE = "planner_config.json"
 LOG_FILE = "train_log.json"
+VOCABULARY_FILE = "slot_vocabulary.json"
 
 
 def _json_text(obj) -> str:
@@ -54,7 +55,7 @@ def _fresh_dir(out_dir: str | Path) -> Path:
 
 
 def _train(model, processor, examples: Sequence[PlannerExample], settings: TrainSettings,
-           desc: str, progress: bool) -> dict:
+           desc: str, progress: bool, vocabulary: dict[str, list[str]] | None = None) -> dict:
     """The one training loop of both stages: AdamW, warm-up + schedule, accelerate placement."""
     from accelerate import Accelerator
     from accelerate.utils import set_seed
@@ -65,7 +66,7 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
         raise ValueError(f"{desc}: no training examples")
     set_seed(settings.seed)
     examples = slot_swap(examples, settings.slot_swap_copies, settings.seed,
-                         settings.slot_swap_pool)
+                         settings.slot_swap_pool, vocabulary)
     accelerator = Accelerator(cpu=not torch.cuda.is_available(),
                               gradient_accumulation_steps=settings.grad_accum)
     encoded = [encode_example(processor, ex) for ex in examples]
@@ -136,8 +137,13 @@ def tokenizer_corpus(examples: Iterable[PlannerExample]) -> list[str]:
 
 
 def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_dir: str | Path,
-                  *, extra_corpus: Sequence[str] = (), progress: bool = True) -> Path:
-    """The base planner directory: pretrained here into ``out_dir`` (tiny kinds) or the real checkpoint."""
+                  *, extra_corpus: Sequence[str] = (), slot_vocabulary: dict[str, list[str]] | None = None,
+                  progress: bool = True) -> Path:
+    """The base planner directory: pretrained here into ``out_dir`` (tiny kinds) or the real checkpoint.
+
+    ``slot_vocabulary`` (per task, the slot words of the corpus the tokenizer also saw) is saved with
+    the base; LoRA finetuning renames slot words onto it (:func:`planner.augment.slot_swap`).
+    """
     if cfg.kind == "llava_next_8b":
         return resolve_checkpoint(cfg)  # pretrained elsewhere; we only finetune it
     tokenizer = train_tokenizer(tokenizer_corpus(examples) + list(extra_corpus), cfg.vocab_size)
@@ -147,6 +153,7 @@ def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_di
     out = _fresh_dir(out_dir)
     log = _train(model, processor, examples, cfg.pretrain, f"pretrain {cfg.kind}", progress)
     save_model(model, processor, out)
+    write_json_atomic(out / VOCABULARY_FILE, dict(slot_vocabulary or {}), dumps=_json_text)
     write_json_atomic(out / LOG_FILE, log, dumps=_json_text)
     write_json_atomic(out / CONFIG_FILE, {"stage": "base", "config": cfg.to_dict()},  # written last
                       dumps=_json_text)
@@ -183,7 +190,9 @@ def finetune_lora(cfg: PlannerConfig, base_dir: str | Path, examples: Sequence[P
     if cfg.kind == "llava_next_8b":
         model.gradient_checkpointing_enable()
         model.enable_input_require_grads()
-    log = _train(model, processor, examples, settings, f"lora {cfg.kind}", progress)
+    vocab_file = base_dir / VOCABULARY_FILE  # absent for a real checkpoint: the demos' words only
+    vocabulary = json.loads(vocab_file.read_text()) if vocab_file.is_file() else None
+    log = _train(model, processor, examples, settings, f"lora {cfg.kind}", progress, vocabulary)
     model.save_pretrained(out, safe_serialization=True)
     write_json_atomic(out / LOG_FILE, log, dumps=_json_text)
     write_json_atomic(out / CONFIG_FILE, {"stage": "lora", "config": cfg.to_dict(),  # written last

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from planner.augment import slot_swap, slot_words
+from planner.augment import slot_swap, slot_vocabulary, slot_words
 from planner.config import TrainSettings
 from planner.dataset import PlannerExample
 
@@ -73,6 +73,32 @@ def test_task_pool_keeps_words_within_their_task_and_all_pool_mixes_them():
         slot_swap(base, 1, seed=0, pool="vocabulary")
     with pytest.raises(ValueError, match="slot_swap_pool"):
         TrainSettings(slot_swap_pool="vocabulary")
+
+
+def test_vocabulary_words_join_their_task_pool_only():
+    from types import SimpleNamespace
+
+    # The base's corpus: push_buttons goals naming purple and cyan, which no finetuning demo uses.
+    corpus = [SimpleNamespace(task="buttons", goal="push the purple button, then the cyan button",
+                              instructions=["move above the purple button", "push the cyan button"]),
+              SimpleNamespace(task="buttons", goal="push the red button",
+                              instructions=["move above the red button"]),
+              SimpleNamespace(task="drawer", goal="open the middle drawer",
+                              instructions=["pull the middle drawer open"]),
+              SimpleNamespace(task="drawer", goal="open the top drawer",
+                              instructions=["pull the top drawer open"])]
+    vocab = slot_vocabulary(corpus)
+    assert vocab == {"buttons": ["cyan", "purple", "red"], "drawer": ["middle", "top"]}
+    base = _buttons()
+    copies = slot_swap(base, copies=40, seed=2, vocabulary=vocab)[len(base):]
+    said = {w for c in copies if c.task == "buttons" for w in c.target.split()}
+    assert {"purple", "cyan"} <= said  # words only the vocabulary knows are now said
+    assert not said & {"middle", "top", "bottom"}
+    drawer_said = {w for c in copies if c.task == "drawer" for w in c.target.split()}
+    assert "middle" in drawer_said and not drawer_said & {"purple", "cyan", "red"}
+    # without a vocabulary the pools are the demos' own words, as before
+    plain = slot_swap(base, copies=40, seed=2)[len(base):]
+    assert not {w for c in plain for w in c.target.split()} & {"purple", "cyan", "middle"}
 
 
 def test_swapping_is_seeded_and_off_at_zero():
