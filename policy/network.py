@@ -176,14 +176,16 @@ class KeyframeNet(nn.Module):
 
     def loss(self, pred: dict[str, torch.Tensor], target_pos: torch.Tensor,
              target_quat: torch.Tensor, target_open: torch.Tensor,
-             pos_sigma: float | None = None) -> torch.Tensor:
+             pos_sigma: float | None = None, rot_kappa: float | None = None) -> torch.Tensor:
         """Negative log-likelihood of the expert keyframe under the anchor mixture (mean over batch).
 
         ``pos_sigma`` overrides the configured width (training anneals it from wide to narrow so
-        that early on every anchor gets gradient, not only the one that happens to start closest).
+        that early on every anchor gets gradient, not only the one that happens to start closest);
+        ``rot_kappa`` the orientation concentration (optionally raised late in training).
         """
         c = self.cfg
         sigma = c.pos_sigma if pos_sigma is None else pos_sigma
+        kappa = c.rot_kappa if rot_kappa is None else rot_kappa
         d2 = ((pred["position"] - target_pos[:, None, :]) ** 2).sum(-1)
         # Sign-invariant; optionally also invariant to the parallel gripper's half turn about its
         # approach axis (the two finger directions grasp alike).
@@ -191,7 +193,7 @@ class KeyframeNet(nn.Module):
         if c.symmetric_gripper:
             flipped = quat_multiply(target_quat, HALF_TURN_Z.to(target_quat))
             cos2 = torch.maximum(cos2, (pred["quaternion"] * flipped[:, None, :]).sum(-1) ** 2)
-        comp = -d2 / (2 * sigma**2) + c.rot_kappa * (cos2 - 1.0)
+        comp = -d2 / (2 * sigma**2) + kappa * (cos2 - 1.0)
         nll = -(torch.logsumexp(pred["log_weights"] + comp, dim=-1)).mean()
         grip = F.binary_cross_entropy_with_logits(pred["gripper_logit"], target_open)
         return nll + c.gripper_weight * grip

@@ -81,6 +81,9 @@ class TrainConfig:
     max_seconds: float | None = None
     sigma_start: float = 0.2  # metres; the mixture width anneals from here to NetConfig.pos_sigma
     anneal_fraction: float = 0.5  # share of the epochs spent annealing
+    # Optional: once the width has annealed (anchors chosen), the orientation concentration rises
+    # from NetConfig.rot_kappa to this over the rest of the schedule; None keeps it constant.
+    kappa_end: float | None = None
 
 
 def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainConfig,
@@ -88,6 +91,8 @@ def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainCon
     """Fit a :class:`KeyframeNet` to ``data``; returns the model and a stats dict (``progress``: a bar)."""
     if len(data) == 0:
         raise ValueError("cannot train the keyframe policy on an empty dataset")
+    if train_cfg.kappa_end is not None and train_cfg.kappa_end <= 0:
+        raise ValueError(f"policy train.kappa_end must be > 0 (or null), got {train_cfg.kappa_end}")
     torch.manual_seed(train_cfg.seed)
     prev_threads = torch.get_num_threads()
     torch.set_num_threads(max(1, train_cfg.threads))
@@ -123,8 +128,12 @@ def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainCon
                 sigma = train_cfg.sigma_start * (net_cfg.pos_sigma / train_cfg.sigma_start) ** frac
                 idx = perm[b * train_cfg.batch_size:(b + 1) * train_cfg.batch_size]
                 pred = net.forward_indexed(*_inputs(t, idx))
+                kappa = None
+                if train_cfg.kappa_end is not None:
+                    late = max(0.0, (done - train_cfg.anneal_fraction) / max(1.0 - train_cfg.anneal_fraction, 1e-6))
+                    kappa = net_cfg.rot_kappa * (train_cfg.kappa_end / net_cfg.rot_kappa) ** min(1.0, late)
                 loss = net.loss(pred, t["target"][idx, :3], t["target"][idx, 3:7], t["target"][idx, 7],
-                                pos_sigma=sigma)
+                                pos_sigma=sigma, rot_kappa=kappa)
                 opt.zero_grad()
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
