@@ -85,14 +85,16 @@ class TrainConfig:
     # from NetConfig.rot_kappa to this over the rest of the schedule; None keeps it constant.
     kappa_end: float | None = None
 
+    def __post_init__(self) -> None:
+        if self.kappa_end is not None and self.kappa_end <= 0:
+            raise ValueError(f"policy train.kappa_end must be > 0 (or null), got {self.kappa_end}")
+
 
 def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainConfig,
                   progress: bool = False) -> tuple[KeyframeNet, dict]:
     """Fit a :class:`KeyframeNet` to ``data``; returns the model and a stats dict (``progress``: a bar)."""
     if len(data) == 0:
         raise ValueError("cannot train the keyframe policy on an empty dataset")
-    if train_cfg.kappa_end is not None and train_cfg.kappa_end <= 0:
-        raise ValueError(f"policy train.kappa_end must be > 0 (or null), got {train_cfg.kappa_end}")
     torch.manual_seed(train_cfg.seed)
     prev_threads = torch.get_num_threads()
     torch.set_num_threads(max(1, train_cfg.threads))
