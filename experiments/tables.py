@@ -186,8 +186,16 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
 
 
 # The method each experiment's paired differences are taken against (its label in the tables).
-REFERENCE = {"abl_alpha": "alpha=1"}
-DEFAULT_REFERENCE = "rdd"
+# The paper's setting each table is compared with; the first label present is used (a sweep may
+# write alpha as 1 or 1.0).
+REFERENCE = {"abl_alpha": ("alpha=1.0", "alpha=1")}
+DEFAULT_REFERENCE = ("rdd",)
+
+
+def _reference(runs: Sequence[RunRecord], candidates: Sequence[str]) -> str:
+    """The first of ``candidates`` that labels one of ``runs`` (else the first, and no paired table)."""
+    labels = {r.method for r in runs}
+    return next((c for c in candidates if c in labels), candidates[0])
 
 
 def paired_table(title: str, runs: Sequence[RunRecord], reference: str, n_boot: int = 10_000) -> Table | None:
@@ -423,7 +431,8 @@ def build_tables(runs: Sequence[RunRecord]) -> dict[str, list[Table]]:
         title = TITLES.get(exp, f"Experiment {exp}")
         tables = [
             success_table(title, eruns),
-            paired_table(f"{title}: paired differences", eruns, REFERENCE.get(exp, DEFAULT_REFERENCE)),
+            paired_table(f"{title}: paired differences", eruns,
+                         _reference(eruns, REFERENCE.get(exp, DEFAULT_REFERENCE))),
             miou_table(f"{title}: decomposition mIoU against the expert", eruns),
             planner_table(f"{title}: planner next-instruction exact match", eruns),
             speed_table(f"{title}: solver time", eruns),

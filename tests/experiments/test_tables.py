@@ -189,3 +189,20 @@ def test_image_dependent_boundaries_and_their_planner_column(tmp_path: Path):
     # finetuned: 4 of 5 right overall (80.0), 1 of 2 image-dependent (50.0); base 2 of 5, 0 of 2
     assert lines[0].startswith("| expert | base | 40.0 ± 0.0 | 0.0 ± 0.0 |")
     assert lines[1].startswith("| expert | finetuned | **80.0 ± 0.0** | 50.0 ± 0.0 |")
+
+
+@pytest.mark.parametrize("one", ["1", "1.0"])
+def test_alpha_table_pairs_against_the_papers_alpha_however_it_was_written(tmp_path: Path, one: str):
+    # alpha=0 wins t1's one episode where alpha=1 fails, ties t2: +50 points over the two tasks.
+    for name, alpha, outcomes in (("0", "0", {"t1": [True], "t2": [True]}),
+                                  ("1", one, {"t1": [False], "t2": [True]})):
+        _write_run(tmp_path, name, "rdd", 0, outcomes, experiment="abl_alpha")
+        path = tmp_path / name / "results.json"
+        data = json.loads(path.read_text())
+        data["overrides"] = [f"decomposer.alpha={alpha}", "seed=0"]
+        path.write_text(json.dumps(data))
+    md, _ = write_tables(tmp_path, tmp_path / "out")
+    assert f"Δ Avg. Succ. vs alpha={one}" in md
+    paired = md.split("paired differences")[1]
+    row = next(ln for ln in paired.splitlines() if ln.startswith("| alpha=0 |"))
+    assert row.split(" | ")[1] == "+50.0"
