@@ -114,11 +114,20 @@ def assign_labels(runs: Sequence[RunRecord]) -> None:
                                           run.data.get("choices", {}))
 
 
+# Short names of swept settings in labels (the paper's symbols where it has one).
+LABEL_NAMES = {"data.val_episodes_per_task": "M", "data.val_first_episode": "first demo"}
+
+
 def method_label(overrides: Iterable[str], choices: dict[str, Any]) -> str:
-    """``["decomposer=rdd", "decomposer.alpha=0.5"]`` -> ``rdd, alpha=0.5``; else the decomposer."""
-    parts = []
-    for key, value in _parse_overrides(overrides).items():
-        parts.append(value if "." not in key else f"{key.rsplit('.', 1)[-1]}={value}")
+    """``["decomposer=rdd", "decomposer.alpha=0.5"]`` -> ``rdd, alpha=0.5``; else the decomposer.
+
+    Group choices come first, then settings (``data.val_episodes_per_task=1`` reads ``M=1``).
+    """
+    parsed = _parse_overrides(overrides)
+    parts = [value for key, value in parsed.items() if "." not in key]
+    for key, value in parsed.items():
+        if "." in key:
+            parts.append(f"{LABEL_NAMES.get(key, key.rsplit('.', 1)[-1])}={value}")
     if parts:
         return ", ".join(parts)
     if choices.get("planner") == "oracle":

@@ -122,6 +122,12 @@ def test_labels_come_from_the_swept_overrides(tmp_path: Path):
     single = [rec(["seed=3"])]
     assign_labels(single)
     assert single[0].method == "rdd"
+    # abl_demos' two multiruns (M=3 rdd / uvd; M=1 rdd on single-demo sets): the group choice
+    # first, then the settings, M under the paper's symbol
+    demos = [rec(["decomposer=rdd"]), rec(["decomposer=uvd"])] + [
+        rec(["decomposer=rdd", "data.val_episodes_per_task=1", f"data.val_first_episode={i}"]) for i in (0, 1)]
+    assign_labels(demos)
+    assert [r.method for r in demos] == ["rdd", "uvd", "rdd, M=1, first demo=0", "rdd, M=1, first demo=1"]
 
 
 def test_miou_table_time_and_novelty_columns(tmp_path: Path):
