@@ -91,7 +91,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(tr_y)} train boundaries ({len(set(tr_ep))} episodes), {len(te_y)} test; "
           f"majority-class rate on test {majority:.3f}")
     ks = [int(k) for k in args.subsets.split(",") if k]
-    f_tr, f_te = stage_features(tr_img), stage_features(te_img)
+    # one pass of the network over train and test images together, split afterwards
+    both = stage_features(np.concatenate([tr_img, te_img]))
+    f_tr = {k: v[:len(tr_y)] for k, v in both.items()}
+    f_te = {k: v[len(tr_y):] for k, v in both.items()}
     rng = np.random.default_rng(0)
     names = sorted(set(tr_ep))
     rows = []
