@@ -43,7 +43,7 @@ def test_turn_from_the_handle_to_top_down_has_its_own_words(episodes):
     turned = [i for i, ins in enumerate(ep.instructions) if ins == "move the gripper above the cabinet"]
     assert len(turned) == 1
     assert labels[turned[0]] == "turn the gripper to point down"
-    others = [(a, b) for i, (a, b) in enumerate(zip(labels, ep.instructions)) if i != turned[0]]
+    others = [(a, b) for i, (a, b) in enumerate(zip(labels, ep.instructions, strict=True)) if i != turned[0]]
     assert all(a == b for a, b in others)
     # The pull that precedes it keeps the hand sideways: no turn there.
     assert "point down" not in PrivilegedLabeler().label(ep, ep.segments[turned[0] - 1])
