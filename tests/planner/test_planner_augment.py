@@ -117,3 +117,44 @@ def test_off_keeps_the_cache_keys_of_settings_made_before_the_option():
     assert "slot_swap_copies" not in off and "slot_swap_pool" not in off
     assert TrainSettings(slot_swap_copies=2).key_dict()["slot_swap_copies"] == 2
     assert TrainSettings(slot_swap_copies=2).key_dict()["slot_swap_pool"] == "task"
+    on = TrainSettings(slot_swap_copies=2, slot_swap_resample=True).key_dict()
+    assert on["slot_swap_resample"] is True
+    assert "slot_swap_resample" not in TrainSettings(slot_swap_copies=2).key_dict()
+
+
+def _epoch_texts(settings: TrainSettings, epochs: int) -> list[list[str]]:
+    """The decoded training sequences of each epoch, sorted (shuffling aside)."""
+    pytest.importorskip("accelerate")
+    from accelerate import Accelerator
+
+    from planner.config import PlannerConfig
+    from planner.dataset import PlannerCollator
+    from planner.models import build_processor, train_tokenizer
+    from planner.train import _EpochBatches, tokenizer_corpus
+
+    examples = [PlannerExample(image=np.zeros((64, 64, 3), np.uint8), goal=ex.goal,
+                               previous_instruction=ex.previous_instruction, target=ex.target,
+                               task=ex.task) for ex in _buttons()]
+    tokenizer = train_tokenizer(tokenizer_corpus(examples) + ["purple cyan middle"], 300)
+    processor = build_processor(PlannerConfig(kind="tiny_llava", vocab_size=300), tokenizer)
+    batches = _EpochBatches(examples, settings, processor, Accelerator(cpu=True),
+                            PlannerCollator(tokenizer.pad_token_id), None)
+    out = []
+    for epoch in range(epochs):
+        texts = [tokenizer.decode(ids[ids != tokenizer.pad_token_id])
+                 for batch in batches.loader(epoch) for ids in batch["input_ids"]]
+        assert len(texts) == batches.count
+        out.append(sorted(texts))
+    return out
+
+
+def test_resampled_copies_are_drawn_afresh_each_epoch():
+    fixed = _epoch_texts(TrainSettings(slot_swap_copies=2, batch_size=4), 3)
+    assert fixed[0] == fixed[1] == fixed[2]
+    fresh = _epoch_texts(TrainSettings(slot_swap_copies=2, batch_size=4, slot_swap_resample=True), 3)
+    assert len(fresh[0]) == len(fixed[0])  # as many examples per epoch as fixed copies
+    assert fresh[0] != fresh[1] != fresh[2]
+    # the originals are in every epoch, renamed copies beside them
+    originals = _epoch_texts(TrainSettings(batch_size=4), 1)[0]
+    for epoch in fresh:
+        assert all(epoch.count(t) >= originals.count(t) for t in originals)
