@@ -170,16 +170,33 @@ def embedding_cache(root: Path):
 
 
 def build_database(episodes, encoder, views, cache, out: Path) -> None:
-    """Build the sub-task database of episodes carrying their labelled segments; save it into ``out``."""
-    from rdd.calibrate import calibrate, sample_episodes
+    """Build the sub-task database of episodes carrying their labelled segments; save it into ``out``.
+
+    Only each segment's boundary frames are encoded; :func:`calibrate_database` adds what the
+    calibrated decomposer needs on top.
+    """
     from rdd.database import SubtaskDatabase
 
+    db = SubtaskDatabase.build(episodes, None, encoder, views=tuple(views), cache=cache)
+    db.save(out / "database")
+
+
+def calibrate_database(database_dir: Path, episodes, encoder, views, cache, out: Path) -> None:
+    """The database in ``database_dir`` plus whole-episode vectors of a sample of its episodes and
+    their leave-one-episode-out calibration (``rdd.calibrate``), saved into ``out``."""
+    from rdd.calibrate import calibrate, sample_episodes
+    from rdd.encoders.embed import episode_frame_vectors
+
+    db = load_database(database_dir)
     names = [ep.name for ep in episodes]
-    # Calibration (decomposer=rdd_calibrated) keeps whole-episode vectors of a sample of episodes.
-    keep = sample_episodes(names) if len(set(names)) == len(names) > 1 else []
-    db = SubtaskDatabase.build(episodes, None, encoder, views=tuple(views), cache=cache,
-                               keep_frames=keep)
-    if keep:
+    if len(set(names)) != len(names):
+        raise ValueError("calibration needs unique episode names; the training episodes repeat some")
+    keep = set(sample_episodes(names)) if len(names) > 1 else set()
+    normalize = bool(db.meta.get("normalize_views", True))
+    db.frames = {ep.name: episode_frame_vectors(ep, encoder, views=tuple(views), cache=cache,
+                                                normalize=normalize)
+                 for ep in episodes if ep.name in keep}
+    if db.frames:
         db.meta["calibration"] = calibrate(db)
     db.save(out / "database")
 

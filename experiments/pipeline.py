@@ -2,7 +2,7 @@
 
 Stages (each cached under ``paths.cache_dir`` by the config that affects it, see ``stages.py``):
 episodes per task and split -> expert segmentation + labels -> policy -> sub-task database (per
-encoder) -> decomposition of the M validation demos -> planner base (pretraining tasks) -> planner
+encoder; + calibration, for a calibrated decomposer only) -> decomposition of the M validation demos -> planner base (pretraining tasks) -> planner
 finetune (per decomposer, encoder, M, seed) -> evaluation (per planner, policy, evaluation seeds).
 """
 
@@ -266,7 +266,8 @@ class Run:
         return tasks
 
     def database(self):
-        """The sub-task database of the training episodes under this run's encoder."""
+        """The sub-task database of the training episodes under this run's encoder (calibrated
+        when the decomposer asks for it: a stage of its own, so other runs never pay for it)."""
         if self._database is None:
             tasks = self.database_tasks()
             eps, data_key = self.labelled_set(
@@ -276,9 +277,19 @@ class Run:
                 "database", spec,
                 lambda tmp: comp.build_database(eps, self.encoder(), self.views,
                                                 self.embedding_cache(), tmp))
+            if self.uses_calibration():
+                path, key = self.cache.get_or_build(
+                    "calibration", {"database": key},
+                    lambda tmp, plain=path: comp.calibrate_database(
+                        plain, eps, self.encoder(), self.views, self.embedding_cache(), tmp))
             self._database = comp.load_database(path)
             self._database_key = key
         return self._database
+
+    def uses_calibration(self) -> bool:
+        """Whether the decomposer takes its options from the database's calibration."""
+        node = self.cfg.get("decomposer")
+        return bool(node is not None and node.get("use_calibration", False))
 
     def runtime(self, node: DictConfig, group: str) -> dict[str, Any]:
         """The runtime objects the component of ``node`` takes, each under its one name."""
