@@ -76,10 +76,21 @@ class SweepProgress(Callback):
     def _poll(self, sweep_dir: Path, total: int) -> None:
         from tqdm import tqdm
 
+        if not sys.stderr.isatty():  # a log file: one line per finished run, not a redraw per poll
+            done = -1
+            while True:
+                stopping = self._stop.wait(self.poll_s)
+                now = min(total, finished_runs(sweep_dir))
+                if now != done:
+                    done = now
+                    print(f"sweep: {done}/{total} runs finished", file=sys.stderr, flush=True)
+                if stopping:
+                    return
         with tqdm(total=total, desc="sweep", unit="run", file=sys.stderr, dynamic_ncols=True) as bar:
             while True:
                 stopping = self._stop.wait(self.poll_s)
                 done = min(total, finished_runs(sweep_dir))
-                bar.update(done - bar.n)
+                if done > bar.n:
+                    bar.update(done - bar.n)
                 if stopping:
                     return

@@ -39,3 +39,7 @@ def test_bar_follows_the_results_files(tmp_path: Path, capsys):
     cb.on_multirun_end(cfg)
     err = capsys.readouterr().err
     assert "sweep" in err and "3/3" in err
+    # stderr is no terminal here (a log file, as under experiments.reproduce): one line per change
+    # in the count, never a redraw per poll
+    lines = err.splitlines()
+    assert "\r" not in err and len(lines) == len(set(lines)) <= 4, lines
