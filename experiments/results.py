@@ -9,6 +9,7 @@ episodes.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -91,12 +92,24 @@ class RunRecord:
 IGNORED_KEYS = ("seed", "experiment", "paths.", "wandb.", "hydra.", "print_table", "threads")
 
 
+def _plain_number(value: str) -> str:
+    """A number written one way (``1.0`` and ``1`` -> ``1``, ``0.10`` -> ``0.1``); else ``value``."""
+    try:
+        number = float(value)
+    except ValueError:
+        return value
+    if not math.isfinite(number):
+        return value
+    text = repr(number)
+    return text[:-2] if text.endswith(".0") else text
+
+
 def _parse_overrides(overrides: Iterable[str]) -> dict[str, str]:
     out = {}
     for ov in overrides:
         key, _, value = str(ov).lstrip("+~").partition("=")
         if not key.startswith(IGNORED_KEYS):
-            out[key] = value
+            out[key] = _plain_number(value)
     return out
 
 

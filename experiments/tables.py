@@ -186,9 +186,9 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
 
 
 # The method each experiment's paired differences are taken against (its label in the tables: the
-# paper's alpha, the default encoder); the first label present is used (a sweep may write alpha as
-# 1 or 1.0).
-REFERENCE = {"abl_alpha": ("alpha=1.0", "alpha=1"), "abl_encoder": ("effnet_lite0",)}
+# paper's alpha, the default encoder; labels write a number one way, 1.0 as 1); the first label
+# present is used.
+REFERENCE = {"abl_alpha": ("alpha=1",), "abl_encoder": ("effnet_lite0",)}
 DEFAULT_REFERENCE = ("rdd",)
 
 
