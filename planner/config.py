@@ -65,9 +65,6 @@ class TrainSettings:
     # from the goal instead of recalling them from a few demos; 0 = off
     slot_swap_copies: int = 0
     slot_swap_pool: str = "task"  # rename onto the task's own slot words, or "all" tasks'
-    # draw the copies afresh every epoch (epochs x copies distinct renamings per example) instead
-    # of once: as many renamings for fewer training steps
-    slot_swap_resample: bool = False
 
     def __post_init__(self) -> None:
         if self.schedule not in SCHEDULES:
@@ -86,11 +83,9 @@ class TrainSettings:
 
     def key_dict(self) -> dict[str, Any]:
         """The settings as a cache key; options added later are left out while they are off."""
-        d = _key_dict(self, {"slot_swap_copies": 0, "inner_frame_stride": 1,
-                             "slot_swap_resample": False})
+        d = _key_dict(self, {"slot_swap_copies": 0, "inner_frame_stride": 1})
         if not self.slot_swap_copies:
             d.pop("slot_swap_pool")  # meaningless without copies
-            d.pop("slot_swap_resample", None)
         return d
 
 

@@ -54,33 +54,6 @@ def _fresh_dir(out_dir: str | Path) -> Path:
     return out
 
 
-class _EpochBatches:
-    """Each epoch's batches: the examples plus slot-swapped copies, drawn once or every epoch."""
-
-    def __init__(self, examples, settings: TrainSettings, processor, accelerator, collate,
-                 vocabulary: dict[str, list[str]] | None) -> None:
-        self.examples, self.settings, self.processor = list(examples), settings, processor
-        self.accelerator, self.collate, self.vocabulary = accelerator, collate, vocabulary
-        self.generator = torch.Generator().manual_seed(settings.seed)
-        self.encoded_originals = [encode_example(processor, ex) for ex in self.examples]
-        self.current = None
-        self.count = 0
-
-    def loader(self, epoch: int):
-        """The epoch's data loader (the same one every epoch unless copies are resampled)."""
-        s = self.settings
-        if self.current is None or s.slot_swap_resample:
-            swap_seed = s.seed + (epoch if s.slot_swap_resample else 0)
-            copies = slot_swap(self.examples, s.slot_swap_copies, swap_seed, s.slot_swap_pool,
-                               self.vocabulary)[len(self.examples):]
-            encoded = self.encoded_originals + [encode_example(self.processor, ex) for ex in copies]
-            self.count = len(encoded)
-            self.current = self.accelerator.prepare(torch.utils.data.DataLoader(
-                encoded, batch_size=s.batch_size, shuffle=True, collate_fn=self.collate,
-                generator=self.generator))
-        return self.current
-
-
 def _train(model, processor, examples: Sequence[PlannerExample], settings: TrainSettings,
            desc: str, progress: bool, vocabulary: dict[str, list[str]] | None = None) -> dict:
     """The one training loop of both stages: AdamW, warm-up + schedule, accelerate placement."""
@@ -92,26 +65,30 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
     if not examples:
         raise ValueError(f"{desc}: no training examples")
     set_seed(settings.seed)
+    examples = slot_swap(examples, settings.slot_swap_copies, settings.seed,
+                         settings.slot_swap_pool, vocabulary)
     accelerator = Accelerator(cpu=not torch.cuda.is_available(),
                               gradient_accumulation_steps=settings.grad_accum)
+    encoded = [encode_example(processor, ex) for ex in examples]
     collate = PlannerCollator(processor.tokenizer.pad_token_id, padding_side="right")
-    batches = _EpochBatches(examples, settings, processor, accelerator, collate, vocabulary)
-    loader = batches.loader(0)
+    loader = torch.utils.data.DataLoader(
+        encoded, batch_size=settings.batch_size, shuffle=True, collate_fn=collate,
+        generator=torch.Generator().manual_seed(settings.seed))
     params = [p for p in model.parameters() if p.requires_grad]
     optimizer = torch.optim.AdamW(params, lr=settings.lr, weight_decay=settings.weight_decay)
     total = math.ceil(len(loader) / settings.grad_accum) * settings.epochs
     scheduler = get_scheduler(settings.schedule, optimizer,
                               num_warmup_steps=int(round(settings.warmup_ratio * total)),
                               num_training_steps=total)
-    model, optimizer, scheduler = accelerator.prepare(model, optimizer, scheduler)
+    model, optimizer, loader, scheduler = accelerator.prepare(model, optimizer, loader, scheduler)
     model.train()
     losses: list[float] = []
     start = time.process_time()
     wall = time.perf_counter()
     bar = tqdm(total=total, desc=desc, disable=not progress, leave=False)
-    for epoch in range(settings.epochs):
+    for _epoch in range(settings.epochs):
         epoch_loss, n = 0.0, 0
-        for batch in batches.loader(epoch):
+        for batch in loader:
             with accelerator.accumulate(model):
                 loss = model(**batch).loss
                 accelerator.backward(loss)
@@ -128,7 +105,7 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
         losses.append(epoch_loss / max(n, 1))
     bar.close()
     model.eval()
-    return {"epoch_losses": losses, "steps": total, "examples": batches.count,
+    return {"epoch_losses": losses, "steps": total, "examples": len(examples),
             "cpu_seconds": time.process_time() - start, "wall_seconds": time.perf_counter() - wall}
 
 
