@@ -171,19 +171,24 @@ class Run:
         return comp.embedding_cache(Path(self.cfg.paths.cache_dir) / "embeddings")
 
     # --- stages ----------------------------------------------------------------------------------
-    def episodes(self, task: str, split: str, count: int, first: int = 0) -> list:
+    def episodes(self, task: str, split: str, count: int, first: int = 0, wait: bool = True) -> list | None:
         """Successful scripted demos ``first .. first+count-1`` of ``task`` in ``split`` (cached).
 
         Generation is resumable per episode, so a run asking for 3 demos reuses the 1 an earlier
-        run made; each episode's key is its env config, task, split and seed.
+        run made; each episode's key is its env config, task, split and seed. ``wait=False``:
+        None at once when another job is generating this task's demos.
         """
         env_key = spec_key({"env": self.node("env"), "code": stage_code_key("demos")})
         root = self.cache.root / "demos" / env_key
-        with self.cache.lock("demos", f"{env_key}-{task}-{split}"), \
-                self.cache.timed("episodes") as timing:
-            before = set(root.glob(f"{split}/{task}/*/episode.json"))
-            dirs = comp.episodes_for(self.cfg.env, task, split, first + count, root)[first:]
-            timing["cached"] = all(d / "episode.json" in before for d in dirs)
+        lock = (self.cache.lock("demos", f"{env_key}-{task}-{split}") if wait
+                else self.cache.try_lock("demos", f"{env_key}-{task}-{split}"))
+        with lock as held:
+            if held is False:
+                return None
+            with self.cache.timed("episodes") as timing:
+                before = set(root.glob(f"{split}/{task}/*/episode.json"))
+                dirs = comp.episodes_for(self.cfg.env, task, split, first + count, root)[first:]
+                timing["cached"] = all(d / "episode.json" in before for d in dirs)
         out = []
         for d in dirs:
             key = spec_key({"demos": env_key, "episode": d.name, "split": split})
@@ -216,6 +221,15 @@ class Run:
 
     def labelled_set(self, tasks: list[str], split: str, count: int) -> tuple[list[Episode], str]:
         """Expert-segmented, labelled episodes of several tasks, and a key over all of them."""
+        # Demos first, taking the tasks no other job is generating right now: concurrent jobs of a
+        # cold sweep then split the tasks between them instead of waiting on each other's.
+        pending = list(dict.fromkeys(tasks))
+        while pending:
+            made = [t for t in pending if self.episodes(t, split, count, wait=False) is not None]
+            if not made:  # every remaining task is another job's now: wait for one
+                self.episodes(pending[0], split, count)
+                made = pending[:1]
+            pending = [t for t in pending if t not in made]
         eps, keys = [], []
         for task in tasks:
             e, k = self.expert_labels(task, split, count)
@@ -223,15 +237,16 @@ class Run:
             keys.append(k)
         return eps, spec_key({"parts": keys})
 
-    def policy_stage(self) -> tuple[Path, str]:
-        """The keyframe policy trained on expert-decomposed, labelled training episodes."""
+    def policy_stage(self, wait: bool = True) -> tuple[Path, str] | None:
+        """The keyframe policy trained on expert-decomposed, labelled training episodes
+        (``wait=False``: None at once while another job trains it)."""
         eps, data_key = self.labelled_set(
             self.policy_tasks(), "train", int(self.cfg.data.train_episodes_per_task))
         spec = {"policy": self.node("policy"), "data": data_key}
         return self.cache.get_or_build(
             "policy", spec,
             lambda tmp: comp.train_policy(self.cfg.policy, eps, self.train_labeler(),
-                                          self.text_cache(), tmp))
+                                          self.text_cache(), tmp), wait=wait)
 
     def labeler(self):
         """The labeller of decomposed demonstrations, shared by every decomposer (built once)."""
@@ -590,7 +605,8 @@ def _decompose_only(run: Run, results: dict[str, Any]) -> None:
 def _hierarchical(run: Run, results: dict[str, Any]) -> None:
     from experiments.evaluation import evaluate
 
-    policy_dir, policy_key = run.policy_stage()
+    # While another job of the sweep trains the policy, this one builds its planner meanwhile.
+    policy = run.policy_stage(wait=False)
     seeds = [comp.test_seed(i) for i in run.evaluation_seeds(int(run.cfg.eval.episodes_per_task))]
     if run.planner_learned():
         base_dir, adapter_dir, planner_key, info = run.planner_stage()
@@ -610,6 +626,7 @@ def _hierarchical(run: Run, results: dict[str, Any]) -> None:
 
         def make_planner() -> Any:
             return instantiate_component(run.cfg.planner, "planner", plans=plans)
+    policy_dir, policy_key = policy or run.policy_stage()
     loaded: dict[str, Any] = {}
 
     def models() -> tuple[Any, Any]:

@@ -154,17 +154,34 @@ class StageCache:
                       stale_after_s=self.stale_after_s, label=f"stage {stage}/{key}"):
             yield
 
+    @contextlib.contextmanager
+    def try_lock(self, stage: str, key: str) -> Iterator[bool]:
+        """The lock on (stage, key) if it is free right now: yields True when held, False when another
+        job holds it (then nothing is held)."""
+        lock_dir = self.root / stage
+        lock_dir.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(lock_dir / f".{key}.lock.json", heartbeat_s=self.heartbeat_s,
+                        stale_after_s=self.stale_after_s, label=f"stage {stage}/{key}")
+        got = lock.try_acquire()
+        try:
+            yield got
+        finally:
+            if got:
+                lock.release()
+
     def get_or_build(
         self,
         stage: str,
         spec: dict[str, Any],
         build: Callable[[Path], None],
         timing_name: str | None = None,
-    ) -> tuple[Path, str]:
+        wait: bool = True,
+    ) -> tuple[Path, str] | None:
         """Directory holding ``stage``'s output for ``spec``, calling ``build(tmp_dir)`` on a miss.
 
         Returns ``(directory, key)``. The timing goes to ``self.timings[timing_name or stage]``
         (accumulated when a stage runs several times in one run, e.g. once per task).
+        ``wait=False``: None at once when the entry is missing and another job is building it.
         """
         code = stage_code_key(stage)
         if code is not None:
@@ -174,7 +191,9 @@ class StageCache:
         start = time.perf_counter()
         cached = True
         if not (final / SPEC_FILE).is_file():
-            with self.lock(stage, key):
+            with (self.lock(stage, key) if wait else self.try_lock(stage, key)) as held:
+                if held is False:
+                    return None
                 if not (final / SPEC_FILE).is_file():  # another job may have built it meanwhile
                     cached = self._build(final, spec, build)
         self._record(timing_name or stage, time.perf_counter() - start, cached)

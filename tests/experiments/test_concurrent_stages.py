@@ -1,0 +1,77 @@
+"""Concurrent jobs of a cold sweep split the work instead of waiting on each other's stages."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+import experiments.schemas  # noqa: F401  (registers base_config)
+from experiments.locks import FileLock
+from experiments.stages import SPEC_FILE, StageCache, spec_key, stage_code_key
+
+CONF = Path(__file__).resolve().parents[2] / "conf"
+
+
+def _held_elsewhere(cache: StageCache, stage: str, key: str) -> FileLock:
+    """A lock taken as another job would (a lock file naming a live owner)."""
+    lock = FileLock(cache.root / stage / f".{key}.lock.json")
+    (cache.root / stage).mkdir(parents=True, exist_ok=True)
+    assert lock.try_acquire()
+    return lock
+
+
+def test_get_or_build_without_waiting_leaves_a_busy_entry_to_its_builder(tmp_path: Path):
+    cache = StageCache(tmp_path)
+    calls = []
+
+    def build(tmp: Path) -> None:
+        calls.append(tmp)
+        (tmp / "out.txt").write_text("x")
+
+    key = spec_key({"n": 1})
+    other = _held_elsewhere(cache, "thing", key)
+    assert cache.get_or_build("thing", {"n": 1}, build, wait=False) is None
+    assert calls == [] and not cache.path("thing", key).exists()
+    other.release()
+    path, got = cache.get_or_build("thing", {"n": 1}, build, wait=False)
+    assert got == key and (path / "out.txt").read_text() == "x" and (path / SPEC_FILE).is_file()
+    # finished: found without any lock, even while someone holds the key's lock
+    other = _held_elsewhere(cache, "thing", key)
+    assert cache.get_or_build("thing", {"n": 1}, build, wait=False) == (path, key)
+    other.release()
+    assert len(calls) == 1
+    with cache.try_lock("thing", "k2") as held:
+        assert held is True
+        with cache.try_lock("thing", "k2") as again:
+            assert again is False
+
+
+def test_labelled_set_makes_the_free_tasks_demos_while_another_job_makes_one(tmp_path: Path):
+    pytest.importorskip("pybullet")
+    from experiments.pipeline import Run
+
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose(config_name="config",
+                      overrides=["experiment=smoke", f"paths.cache_dir={tmp_path / 'cache'}"])
+    cache = StageCache(tmp_path / "cache")
+    run = Run(cfg, tmp_path / "out", cache)
+    env_key = spec_key({"env": run.node("env"), "code": stage_code_key("demos")})
+    busy, free, split = "open_drawer", "close_jar", "train"
+    other = _held_elsewhere(cache, "demos", f"{env_key}-{busy}-{split}")
+    result: dict = {}
+    worker = threading.Thread(target=lambda: result.update(out=run.labelled_set([busy, free], split, 1)))
+    worker.start()
+    free_demo = cache.root / "demos" / env_key / split / free
+    deadline = time.monotonic() + 300
+    while not list(free_demo.glob("*/episode.json")):  # made while the busy task is still held
+        assert worker.is_alive() and time.monotonic() < deadline, "the free task's demo never came"
+        time.sleep(0.2)
+    assert not (cache.root / "demos" / env_key / split / busy).exists()
+    other.release()  # the other job is done: this one now makes (here) the busy task's demo too
+    worker.join(timeout=300)
+    episodes, _key = result["out"]
+    assert [ep.task for ep in episodes] == [busy, free]  # the caller's order, whoever made them
