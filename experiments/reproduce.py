@@ -17,11 +17,13 @@ Outputs, under ``--out`` (default ``outputs/reproduce/<scale>``):
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
 import platform
 import shlex
+import signal
 import subprocess
 import sys
 import time
@@ -171,7 +173,7 @@ def run_table(table: TablePlan, out: Path, cache_dir: Path | None, force: bool =
         with open(log_path, "a") as fh:
             fh.write(f"\n$ python {shlex.join(command)}\n")
             fh.flush()
-            proc = subprocess.run([sys.executable, *command], cwd=REPO_ROOT, stdout=fh, stderr=subprocess.STDOUT, env=env)
+            proc = _run_group([sys.executable, *command], cwd=REPO_ROOT, stdout=fh, env=env)
         if proc.returncode != 0:
             raise RuntimeError(f"table {table.name}: run.py exited with {proc.returncode} after "
                                f"{time.perf_counter() - start:.0f} s; see {log_path}")
@@ -183,6 +185,29 @@ def run_table(table: TablePlan, out: Path, cache_dir: Path | None, force: bool =
     write_json_atomic(table_dir / DONE_FILE, record)
     log.info("%s: done in %.0f s", table.name, seconds)
     return {**record, "reused": False}
+
+
+def _run_group(cmd: list[str], **popen) -> subprocess.CompletedProcess:
+    """``cmd`` in a process group of its own, which goes down with the driver: stopping the driver
+    (Ctrl-C, SIGTERM) also stops run.py's sweep workers, which would otherwise keep writing into
+    the stage cache."""
+    proc = subprocess.Popen(cmd, stderr=subprocess.STDOUT, start_new_session=True, **popen)
+    try:
+        return subprocess.CompletedProcess(cmd, proc.wait())
+    except BaseException:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGTERM)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(timeout=10)
+            time.sleep(0.5)
+            os.killpg(proc.pid, signal.SIGKILL)  # whatever of the group is still there
+        proc.wait()
+        raise
+
+
+def _terminate(signum: int, _frame: Any) -> None:
+    """SIGTERM as an interruption, so the running table's process group is stopped too."""
+    raise KeyboardInterrupt(f"signal {signum}")
 
 
 def summary_markdown(plan: Plan, records: Sequence[dict[str, Any]], out: Path) -> str:
@@ -242,6 +267,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("-v", "--verbose", action="store_true", help="full tracebacks")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         plan = load_plan(args.plan or PLANS_DIR / f"{args.scale}.yaml")
         out = (args.out or REPO_ROOT / "outputs" / "reproduce" / plan.scale).resolve()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -121,3 +122,45 @@ def test_two_tables_killed_then_resumed_then_no_work(tmp_path: Path):
     records = json.loads((out / "reproduce.json").read_text())["tables"]
     assert all(r["reused"] for r in records)
     assert {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("results.json")} == before
+
+
+def _group_members(pgid: int) -> list[int]:
+    """Live processes of process group ``pgid`` (Linux /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if fields[0] != "Z" and int(fields[2]) == pgid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def _sweep_pgid(out: Path) -> int | None:
+    """Process group of the run.py sweep writing under ``out``, if one runs."""
+    for cmd in Path("/proc").glob("[0-9]*/cmdline"):
+        with contextlib.suppress(OSError):
+            text = cmd.read_bytes().replace(b"\0", b" ").decode()
+            if "run.py" in text and str(out) in text:
+                return os.getpgid(int(cmd.parent.name))
+    return None
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_a_terminated_driver_takes_its_sweep_with_it(tmp_path: Path):
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    driver = _driver(out, cache)
+    deadline = time.time() + 120
+    while (pgid := _sweep_pgid(out)) is None and time.time() < deadline:
+        time.sleep(0.2)
+    assert pgid is not None and pgid != os.getpgid(driver.pid)  # the sweep leads a group of its own
+    time.sleep(3)  # let the sweep start its workers
+    driver.send_signal(signal.SIGTERM)  # the driver alone, as `kill PID` does
+    text = driver.communicate(timeout=120)[0]
+    assert driver.returncode == 130, text[-2000:]
+    assert "rerun the same command to resume" in text
+    deadline = time.time() + 30
+    while _group_members(pgid) and time.time() < deadline:
+        time.sleep(0.2)
+    assert _group_members(pgid) == []
