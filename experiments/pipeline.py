@@ -13,8 +13,9 @@ import logging
 import os
 import platform
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
@@ -34,7 +35,8 @@ from experiments.validate import target_callable, validate_config
 from rdd.data.episode import Episode
 
 log = logging.getLogger(__name__)
-
+T = TypeVar("T")
+R = TypeVar("R")
 
 
 class Unavailable(RuntimeError):
@@ -97,6 +99,23 @@ def _hardware() -> dict[str, Any]:
         "torch": torch.__version__,
         "cuda": bool(torch.cuda.is_available()),
     }
+
+
+def each_free_first(items: Sequence[T], attempt: Callable[[T, bool], R | None]) -> dict[T, R]:
+    """``attempt(item, wait)`` for every item: first without waiting (None when another job holds
+    the item's stage), then waiting for the rest one at a time. Concurrent jobs of a cold sweep
+    thus split per-task stages between them instead of queueing behind each other."""
+    done: dict[T, R] = {}
+    pending = list(dict.fromkeys(items))
+    while pending:
+        for item in pending:
+            got = attempt(item, False)
+            if got is not None:
+                done[item] = got
+        if all(item not in done for item in pending):  # every one is another job's now: wait
+            done[pending[0]] = attempt(pending[0], True)
+        pending = [item for item in pending if item not in done]
+    return done
 
 
 class Run:
@@ -199,9 +218,13 @@ class Run:
             out.append(self._episode_cache[key])
         return out
 
-    def expert_labels(self, task: str, split: str, count: int, first: int = 0) -> tuple[list[Episode], str]:
-        """Episodes carrying expert segments and labeller instructions (copies), and a key over them."""
-        episodes = self.episodes(task, split, count, first)
+    def expert_labels(self, task: str, split: str, count: int, first: int = 0,
+                      wait: bool = True) -> tuple[list[Episode], str] | None:
+        """Episodes carrying expert segments and labeller instructions (copies), and a key over them
+        (``wait=False``: None at once while another job generates the demos)."""
+        episodes = self.episodes(task, split, count, first, wait=wait)
+        if episodes is None:
+            return None
         out, keys = [], []
         for ep in episodes:
             spec = {"episode": self._episode_keys[ep.name], "labeler": self.node("train_labeler")}
@@ -221,15 +244,7 @@ class Run:
 
     def labelled_set(self, tasks: list[str], split: str, count: int) -> tuple[list[Episode], str]:
         """Expert-segmented, labelled episodes of several tasks, and a key over all of them."""
-        # Demos first, taking the tasks no other job is generating right now: concurrent jobs of a
-        # cold sweep then split the tasks between them instead of waiting on each other's.
-        pending = list(dict.fromkeys(tasks))
-        while pending:
-            made = [t for t in pending if self.episodes(t, split, count, wait=False) is not None]
-            if not made:  # every remaining task is another job's now: wait for one
-                self.episodes(pending[0], split, count)
-                made = pending[:1]
-            pending = [t for t in pending if t not in made]
+        each_free_first(tasks, lambda task, wait: self.episodes(task, split, count, wait=wait))
         eps, keys = [], []
         for task in tasks:
             e, k = self.expert_labels(task, split, count)
@@ -342,40 +357,48 @@ class Run:
 
     def decompositions(self, tasks: list[str]) -> tuple[list[dict[str, Any]], str]:
         """Decompose and label the M validation demos of each task; rows + key."""
-        m, first = self.val_window()
         parts = {**self.runtime_key_parts("decomposer"), **self.runtime_key_parts("labeler")}
+        found = each_free_first(tasks, lambda task, wait: self._task_decompositions(task, parts, wait))
         rows: list[dict[str, Any]] = []
         keys = []
         for task in tasks:
-            episodes, expert_key = self.expert_labels(task, "val", m, first)
-            spec = {"demos": expert_key, **parts}
-
-            def build(tmp: Path, episodes=episodes, task=task) -> None:
-                decomposer = instantiate_component(self.cfg.decomposer, "decomposer",
-                                                   self.runtime(self.cfg.decomposer, "decomposer"))
-                labeler = self.labeler()
-                out = []
-                for ep in progress(episodes, desc=f"decompose {task}", unit="demo"):
-                    gt = ep.segments
-                    t0 = time.perf_counter()
-                    dec = decomposer.decompose(ep)
-                    seconds = time.perf_counter() - t0
-                    segs = [tuple(int(v) for v in s) for s in dec.segments]
-                    out.append({
-                        "episode": ep.name, "task": ep.task, "num_frames": ep.num_frames,
-                        "segments": [list(s) for s in segs],
-                        "instructions": [labeler.label(ep, s) for s in segs],
-                        "expert_segments": [list(s) for s in gt],
-                        "miou": float(comp.miou(segs, gt)),
-                        "novelty": None if dec.novelty is None else float(dec.novelty),
-                        "seconds": seconds,
-                    })
-                write_json_atomic(tmp / "decompositions.json", out)
-
-            path, key = self.cache.get_or_build("decompositions", spec, build)
+            path, key = found[task]
             keys.append(key)
             rows += read_json(path / "decompositions.json")
         return rows, spec_key({"parts": keys})
+
+    def _task_decompositions(self, task: str, parts: dict[str, Any], wait: bool) -> tuple[Path, str] | None:
+        """The decompositions stage of one task's validation demos (None: another job's, not waited for)."""
+        m, first = self.val_window()
+        labelled = self.expert_labels(task, "val", m, first, wait=wait)
+        if labelled is None:
+            return None
+        episodes, expert_key = labelled
+        spec = {"demos": expert_key, **parts}
+
+        def build(tmp: Path) -> None:
+            decomposer = instantiate_component(self.cfg.decomposer, "decomposer",
+                                               self.runtime(self.cfg.decomposer, "decomposer"))
+            labeler = self.labeler()
+            out = []
+            for ep in progress(episodes, desc=f"decompose {task}", unit="demo"):
+                gt = ep.segments
+                t0 = time.perf_counter()
+                dec = decomposer.decompose(ep)
+                seconds = time.perf_counter() - t0
+                segs = [tuple(int(v) for v in s) for s in dec.segments]
+                out.append({
+                    "episode": ep.name, "task": ep.task, "num_frames": ep.num_frames,
+                    "segments": [list(s) for s in segs],
+                    "instructions": [labeler.label(ep, s) for s in segs],
+                    "expert_segments": [list(s) for s in gt],
+                    "miou": float(comp.miou(segs, gt)),
+                    "novelty": None if dec.novelty is None else float(dec.novelty),
+                    "seconds": seconds,
+                })
+            write_json_atomic(tmp / "decompositions.json", out)
+
+        return self.cache.get_or_build("decompositions", spec, build, wait=wait)
 
     def base_planner_dir(self) -> tuple[Path, str]:
         """The base planner pretrained on the pretraining tasks' expert demos (the w/o-finetune one)."""

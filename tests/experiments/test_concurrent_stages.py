@@ -75,3 +75,20 @@ def test_labelled_set_makes_the_free_tasks_demos_while_another_job_makes_one(tmp
     worker.join(timeout=300)
     episodes, _key = result["out"]
     assert [ep.task for ep in episodes] == [busy, free]  # the caller's order, whoever made them
+
+
+def test_each_free_first_takes_free_items_then_waits_for_busy_ones():
+    from experiments.pipeline import each_free_first
+
+    calls = []
+
+    def attempt(item: str, wait: bool) -> str | None:
+        calls.append((item, wait))
+        if item == "busy" and not wait:
+            return None  # another job holds it
+        return item.upper()
+
+    done = each_free_first(["busy", "a", "b", "a"], attempt)
+    assert done == {"busy": "BUSY", "a": "A", "b": "B"}
+    # free ones first without waiting; the busy one is tried again, then waited for
+    assert calls == [("busy", False), ("a", False), ("b", False), ("busy", False), ("busy", True)]
