@@ -2,8 +2,9 @@
 
 Stages (each cached under ``paths.cache_dir`` by the config that affects it, see ``stages.py``):
 episodes per task and split -> expert segmentation + labels -> policy -> sub-task database (per
-encoder; + calibration, for a calibrated decomposer only) -> decomposition of the M validation demos -> planner base (pretraining tasks) -> planner
-finetune (per decomposer, encoder, M, seed) -> evaluation (per planner, policy, evaluation seeds).
+encoder; + calibration, for a calibrated decomposer only) -> decomposition of the M validation
+demos -> planner base (pretraining tasks) -> planner finetune (per decomposer, encoder, M, seed)
+-> evaluation (per planner, policy, evaluation seeds).
 """
 
 from __future__ import annotations
@@ -199,10 +200,8 @@ class Run:
         """
         env_key = spec_key({"env": self.node("env"), "code": stage_code_key("demos")})
         root = self.cache.root / "demos" / env_key
-        lock = (self.cache.lock("demos", f"{env_key}-{task}-{split}") if wait
-                else self.cache.try_lock("demos", f"{env_key}-{task}-{split}"))
-        with lock as held:
-            if held is False:
+        with self.cache.lock("demos", f"{env_key}-{task}-{split}", wait=wait) as held:
+            if not held:
                 return None
             with self.cache.timed("episodes") as timing:
                 before = set(root.glob(f"{split}/{task}/*/episode.json"))

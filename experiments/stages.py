@@ -146,28 +146,25 @@ class StageCache:
         return self.root / stage / key
 
     @contextlib.contextmanager
-    def lock(self, stage: str, key: str) -> Iterator[None]:
-        """Exclusive lock on (stage, key) across processes and hosts sharing the cache folder."""
-        lock_dir = self.root / stage
-        lock_dir.mkdir(parents=True, exist_ok=True)
-        with FileLock(lock_dir / f".{key}.lock.json", heartbeat_s=self.heartbeat_s,
-                      stale_after_s=self.stale_after_s, label=f"stage {stage}/{key}"):
-            yield
+    def lock(self, stage: str, key: str, wait: bool = True) -> Iterator[bool]:
+        """Exclusive lock on (stage, key) across processes and hosts sharing the cache folder.
 
-    @contextlib.contextmanager
-    def try_lock(self, stage: str, key: str) -> Iterator[bool]:
-        """The lock on (stage, key) if it is free right now: yields True when held, False when another
-        job holds it (then nothing is held)."""
+        Yields True once held; with ``wait=False`` it does not wait and yields False (holding
+        nothing) when another job holds it.
+        """
         lock_dir = self.root / stage
         lock_dir.mkdir(parents=True, exist_ok=True)
         lock = FileLock(lock_dir / f".{key}.lock.json", heartbeat_s=self.heartbeat_s,
                         stale_after_s=self.stale_after_s, label=f"stage {stage}/{key}")
-        got = lock.try_acquire()
+        if wait:
+            lock.acquire()
+        elif not lock.try_acquire():
+            yield False
+            return
         try:
-            yield got
+            yield True
         finally:
-            if got:
-                lock.release()
+            lock.release()
 
     def get_or_build(
         self,
@@ -191,8 +188,8 @@ class StageCache:
         start = time.perf_counter()
         cached = True
         if not (final / SPEC_FILE).is_file():
-            with (self.lock(stage, key) if wait else self.try_lock(stage, key)) as held:
-                if held is False:
+            with self.lock(stage, key, wait=wait) as held:
+                if not held:
                     return None
                 if not (final / SPEC_FILE).is_file():  # another job may have built it meanwhile
                     cached = self._build(final, spec, build)

@@ -44,9 +44,9 @@ def test_get_or_build_without_waiting_leaves_a_busy_entry_to_its_builder(tmp_pat
     assert cache.get_or_build("thing", {"n": 1}, build, wait=False) == (path, key)
     other.release()
     assert len(calls) == 1
-    with cache.try_lock("thing", "k2") as held:
+    with cache.lock("thing", "k2", wait=False) as held:
         assert held is True
-        with cache.try_lock("thing", "k2") as again:
+        with cache.lock("thing", "k2", wait=False) as again:
             assert again is False
 
 
