@@ -76,21 +76,22 @@ class SweepProgress(Callback):
     def _poll(self, sweep_dir: Path, total: int) -> None:
         from tqdm import tqdm
 
-        if not sys.stderr.isatty():  # a log file: one line per finished run, not a redraw per poll
-            done = -1
+        # A terminal gets a bar; a log file one line per change in the count, not a redraw per poll.
+        bar = (tqdm(total=total, desc="sweep", unit="run", file=sys.stderr, dynamic_ncols=True)
+               if sys.stderr.isatty() else None)
+        done = -1
+        try:
             while True:
                 stopping = self._stop.wait(self.poll_s)
                 now = min(total, finished_runs(sweep_dir))
                 if now != done:
                     done = now
-                    print(f"sweep: {done}/{total} runs finished", file=sys.stderr, flush=True)
+                    if bar is None:
+                        print(f"sweep: {done}/{total} runs finished", file=sys.stderr, flush=True)
+                    else:
+                        bar.update(done - bar.n)
                 if stopping:
                     return
-        with tqdm(total=total, desc="sweep", unit="run", file=sys.stderr, dynamic_ncols=True) as bar:
-            while True:
-                stopping = self._stop.wait(self.poll_s)
-                done = min(total, finished_runs(sweep_dir))
-                if done > bar.n:
-                    bar.update(done - bar.n)
-                if stopping:
-                    return
+        finally:
+            if bar is not None:
+                bar.close()
