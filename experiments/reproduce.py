@@ -7,6 +7,7 @@ all of them share the stage cache, so a stage that several tables need (demonstr
 database, base planner, ...) is built once. A finished table leaves ``DONE.json`` beside its runs
 (the command, commit, wall time): a rerun with the same command skips it and does no work; a table
 that was interrupted is run again, and its jobs that had finished find every stage in the cache.
+Interrupted calls are timed in ``ATTEMPTS.json``, so a finished table's wall time counts every call.
 Outputs, under ``--out`` (default ``outputs/reproduce/<scale>``):
 
 - ``runs/<table>/<job>/results.json``: every number, traceable to its seeds, episodes and config;
@@ -39,6 +40,7 @@ log = logging.getLogger("experiments.reproduce")
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PLANS_DIR = REPO_ROOT / "conf" / "reproduce"
 DONE_FILE = "DONE.json"
+ATTEMPTS_FILE = "ATTEMPTS.json"
 
 
 class PlanError(ValueError):
@@ -165,26 +167,56 @@ def run_table(table: TablePlan, out: Path, cache_dir: Path | None, force: bool =
         return {**record, "reused": True}
     log_path = out / "logs" / f"{table.name}.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
+    table_dir.mkdir(parents=True, exist_ok=True)
     commit = _commit()  # the code the table starts from (a commit landing mid-run is not its code)
+    earlier = _earlier_attempts(table_dir / ATTEMPTS_FILE, log_path)
+    attempt: dict[str, Any] = {"commit": commit, "started": time.time(), "seconds": None}
+    write_json_atomic(table_dir / ATTEMPTS_FILE, [*earlier, attempt])
     start = time.perf_counter()
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")])}
-    for command in commands:
-        log.info("%s: running %s (log: %s)", table.name, shlex.join(command), log_path)
-        with open(log_path, "a") as fh:
-            fh.write(f"\n$ python {shlex.join(command)}\n")
-            fh.flush()
-            proc = _run_group([sys.executable, *command], cwd=REPO_ROOT, stdout=fh, env=env)
-        if proc.returncode != 0:
-            raise RuntimeError(f"table {table.name}: run.py exited with {proc.returncode} after "
-                               f"{time.perf_counter() - start:.0f} s; see {log_path}")
+    try:
+        for command in commands:
+            log.info("%s: running %s (log: %s)", table.name, shlex.join(command), log_path)
+            with open(log_path, "a") as fh:
+                fh.write(f"\n$ python {shlex.join(command)}\n")
+                fh.flush()
+                proc = _run_group([sys.executable, *command], cwd=REPO_ROOT, stdout=fh, env=env)
+            if proc.returncode != 0:
+                raise RuntimeError(f"table {table.name}: run.py exited with {proc.returncode} after "
+                                   f"{time.perf_counter() - start:.0f} s; see {log_path}")
+    except BaseException as exc:
+        attempt.update(seconds=time.perf_counter() - start,
+                       ended="interrupted" if isinstance(exc, KeyboardInterrupt) else "failed")
+        write_json_atomic(table_dir / ATTEMPTS_FILE, [*earlier, attempt])
+        raise
     seconds = time.perf_counter() - start
     _md, written = write_tables(table_dir, out / "tables" / table.name)
     record = {"table": table.name, "experiment": table.experiment, "commands": commands,
-              "commit": commit, "seconds": seconds, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+              "commit": commit, "seconds": seconds,
+              "seconds_all_calls": seconds + sum(a["seconds"] for a in earlier),
+              "earlier_calls": earlier, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
               "outputs": [str(p.relative_to(out)) for p in written]}
     write_json_atomic(table_dir / DONE_FILE, record)
+    (table_dir / ATTEMPTS_FILE).unlink(missing_ok=True)
     log.info("%s: done in %.0f s", table.name, seconds)
     return {**record, "reused": False}
+
+
+def _earlier_attempts(path: Path, log_path: Path) -> list[dict[str, Any]]:
+    """This table's earlier calls that did not finish, each with its wall time; a call killed
+    without a word (SIGKILL, power loss) is timed to the last write to the table's log."""
+    try:
+        attempts = json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return []
+    for a in attempts:
+        if a.get("seconds") is None:
+            try:
+                last = log_path.stat().st_mtime
+            except FileNotFoundError:
+                last = a["started"]
+            a.update(seconds=max(0.0, last - a["started"]), ended="killed (timed to its log's last write)")
+    return attempts
 
 
 def _run_group(cmd: list[str], **popen) -> subprocess.CompletedProcess:
@@ -210,14 +242,20 @@ def _terminate(signum: int, _frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+def _all_calls(record: dict[str, Any]) -> float:
+    """A table's wall time over every call that worked on it (records of older drivers: the last)."""
+    return record.get("seconds_all_calls", record["seconds"])
+
+
 def summary_markdown(plan: Plan, records: Sequence[dict[str, Any]], out: Path) -> str:
     """All tables of a plan in one Markdown page, each with its command and wall time."""
     lines = [f"# Reproduction at scale `{plan.scale}`", "",
              f"Hardware: {os.cpu_count()} CPU cores, {platform.machine()}, Python {platform.python_version()}.",
-             "", "| table | experiment | wall time (min) | commit |", "|---|---|--:|---|"]
+             "", "| table | experiment | wall time (min) | calls | commit |", "|---|---|--:|--:|---|"]
     for r in records:
-        lines.append(f"| {r['table']} | {r['experiment']} | {r['seconds'] / 60:.1f} | {r['commit'][:12]} |")
-    total = sum(r["seconds"] for r in records)
+        lines.append(f"| {r['table']} | {r['experiment']} | {_all_calls(r) / 60:.1f} | "
+                     f"{1 + len(r.get('earlier_calls', []))} | {r['commit'][:12]} |")
+    total = sum(_all_calls(r) for r in records)
     lines += ["", f"Total wall time of the runs: {total / 60:.1f} min.", ""]
     for table, r in zip(plan.tables, records, strict=True):
         lines += [f"## {table.name}", ""]

@@ -164,3 +164,43 @@ def test_a_terminated_driver_takes_its_sweep_with_it(tmp_path: Path):
     while _group_members(pgid) and time.time() < deadline:
         time.sleep(0.2)
     assert _group_members(pgid) == []
+
+
+def test_a_resumed_table_counts_the_wall_time_of_every_call(tmp_path: Path, monkeypatch):
+    import experiments.reproduce as reproduce
+    import experiments.tables
+
+    table = reproduce.TablePlan("t", "smoke")
+    out = tmp_path / "out"
+    table_dir = out / "runs" / "t"
+    log_path = out / "logs" / "t.log"
+    # a call killed without a word (SIGKILL): started at t0, its log last written 100 s later
+    t0 = time.time() - 1000
+    table_dir.mkdir(parents=True)
+    log_path.parent.mkdir(parents=True)
+    (table_dir / "ATTEMPTS.json").write_text(json.dumps([{"commit": "a", "started": t0, "seconds": None}]))
+    log_path.write_text("killed call's output\n")
+    os.utime(log_path, (t0 + 100, t0 + 100))
+
+    def interrupted(cmd, **popen):
+        time.sleep(0.3)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(reproduce, "_run_group", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        reproduce.run_table(table, out, None)
+    attempts = json.loads((table_dir / "ATTEMPTS.json").read_text())
+    assert [a["ended"] for a in attempts] == ["killed (timed to its log's last write)", "interrupted"]
+    assert attempts[0]["seconds"] == pytest.approx(100, abs=0.01)
+    assert 0.3 <= attempts[1]["seconds"] < 5
+
+    monkeypatch.setattr(reproduce, "_run_group", lambda cmd, **popen: subprocess.CompletedProcess(cmd, 0))
+    monkeypatch.setattr(experiments.tables, "write_tables", lambda runs, dest: ("", []))
+    record = reproduce.run_table(table, out, None)
+    assert record["seconds"] < 5 and len(record["earlier_calls"]) == 2
+    assert record["seconds_all_calls"] == pytest.approx(
+        100 + attempts[1]["seconds"] + record["seconds"], abs=0.01)
+    assert not (table_dir / "ATTEMPTS.json").exists()
+    assert json.loads((table_dir / "DONE.json").read_text())["seconds_all_calls"] == record["seconds_all_calls"]
+    summary = reproduce.summary_markdown(reproduce.Plan("s", [table]), [record], out)
+    assert f"| t | smoke | {record['seconds_all_calls'] / 60:.1f} | 3 |" in summary
