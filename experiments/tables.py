@@ -367,7 +367,8 @@ def plot_success(runs: Sequence[RunRecord], path: Path, title: str) -> bool:
     ax.set_ylabel("success (%)")
     ax.set_ylim(0, 105)
     ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, ncols=min(len(methods), 5))
+    # beside the axes: inside, it covered the bars of the tasks near 100 %
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
     fig.tight_layout()
     _save_fig(fig, path)
     return True
