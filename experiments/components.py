@@ -45,6 +45,13 @@ def env_info(env_cfg: DictConfig) -> EnvInfo:
     return EnvInfo(all_tasks, tuple(t for t in all_tasks if t not in pre), pre)
 
 
+def task_sources(task: str) -> tuple[str, ...]:
+    """The source files of one task of the suite (part of the keys of the stages made per task)."""
+    from envs import tasks as suite
+
+    return tuple(suite.task_sources(task))
+
+
 def _env_options(env_cfg: DictConfig | None) -> dict[str, Any]:
     return {k: v for k, v in (_plain(env_cfg) or {}).items() if not str(k).startswith("_")}
 

@@ -191,6 +191,10 @@ class Run:
         return comp.embedding_cache(Path(self.cfg.paths.cache_dir) / "embeddings")
 
     # --- stages ----------------------------------------------------------------------------------
+    def demos_key(self, task: str) -> str:
+        """Key of ``task``'s demos: the env config, the shared env code and the task's own module."""
+        return spec_key({"env": self.node("env"), "code": stage_code_key("demos", comp.task_sources(task))})
+
     def episodes(self, task: str, split: str, count: int, first: int = 0, wait: bool = True) -> list | None:
         """Successful scripted demos ``first .. first+count-1`` of ``task`` in ``split`` (cached).
 
@@ -198,7 +202,7 @@ class Run:
         run made; each episode's key is its env config, task, split and seed. ``wait=False``:
         None at once when another job is generating this task's demos.
         """
-        env_key = spec_key({"env": self.node("env"), "code": stage_code_key("demos")})
+        env_key = self.demos_key(task)
         root = self.cache.root / "demos" / env_key
         with self.cache.lock("demos", f"{env_key}-{task}-{split}", wait=wait) as held:
             if not held:
@@ -454,7 +458,8 @@ class Run:
                 write_json_atomic(tmp / "plans.json", [
                     {"task": task, **comp.expert_plan(self.cfg.env, task, s, labeler)} for s in seeds])
 
-            path, key = self.cache.get_or_build("oracle_plans", spec, build)
+            path, key = self.cache.get_or_build("oracle_plans", spec, build,
+                                                code=comp.task_sources(task))
             keys.append(key)
             got = read_json(path / "plans.json")
             rows += got
@@ -669,7 +674,7 @@ def _hierarchical(run: Run, results: dict[str, Any]) -> None:
                             view=view)
             write_json_atomic(tmp / "episodes.json", [r.to_dict() for r in rows])
 
-        path, _ = run.cache.get_or_build("evaluation", spec, build)
+        path, _ = run.cache.get_or_build("evaluation", spec, build, code=comp.task_sources(task))
         episodes += read_json(path / "episodes.json")
     per_task = per_task_success(episodes)
     results.update(

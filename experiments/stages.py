@@ -39,20 +39,24 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 # The source (files or folders, relative to the repository root) whose code makes each stage; its
 # fingerprint is part of the stage's key. Code a stage reaches only through an upstream stage is
 # covered by that stage's key, which the downstream spec contains.
+# envs/ without its task modules: what every task's demos and evaluation share. Each task's own
+# module (envs.tasks.task_sources) joins the key of the stages made per task, so adding or editing
+# one task keeps the others' demos, policy and evaluations.
+ENVS_SHARED = ("envs", "!envs/tasks", "envs/tasks/base.py")
 STAGE_CODE: dict[str, tuple[str, ...]] = {
     # The labeler and the expert checker do not make demos: editing them keeps the rendered episodes.
-    "demos": ("envs", "!envs/labeler.py", "!envs/check_expert.py", "rdd/data"),
+    "demos": (*ENVS_SHARED, "!envs/labeler.py", "!envs/check_expert.py", "rdd/data"),
     "expert_labels": ("envs/labeler.py", "rdd/retrieval_labeler.py", "rdd/segments.py",
                       "rdd/decomposers/expert.py"),
-    "oracle_plans": ("envs", "rdd/decomposers/expert.py", "rdd/segments.py"),
-    "policy": ("policy", "envs"),
+    "oracle_plans": (*ENVS_SHARED, "rdd/decomposers/expert.py", "rdd/segments.py"),
+    "policy": ("policy", *ENVS_SHARED),
     "database": ("rdd/database.py", "rdd/encoders", "rdd/data"),
     "calibration": ("rdd/database.py", "rdd/index", "rdd/encoders", "rdd/data", "rdd/calibrate.py",
                     "rdd/solver.py", "rdd/scoring.py", "rdd/metrics.py"),
     "decompositions": ("rdd", "envs/labeler.py", "rdd/retrieval_labeler.py"),
     "planner_base": ("planner",),
     "planner_finetune": ("planner",),
-    "evaluation": ("experiments/evaluation.py", "envs", "policy", "planner"),
+    "evaluation": ("experiments/evaluation.py", *ENVS_SHARED, "policy", "planner"),
     "planner_eval": ("planner",),
 }
 
@@ -83,7 +87,8 @@ def canonical(obj: Any) -> Any:
 def code_fingerprint(paths: tuple[str, ...], root: Path = REPO_ROOT) -> str:
     """SHA-256 (16 hex digits) of the Python sources under ``paths`` (names and contents).
 
-    A path starting with ``!`` leaves that file or folder out of the others.
+    A path starting with ``!`` leaves that file or folder out of the folders listed; a file listed
+    by name is always in.
     """
     h = hashlib.sha256()
     skip = [root / rel[1:] for rel in paths if rel.startswith("!")]
@@ -95,17 +100,17 @@ def code_fingerprint(paths: tuple[str, ...], root: Path = REPO_ROOT) -> str:
             raise FileNotFoundError(f"stage code path {rel!r} is not in {root} (experiments.stages.STAGE_CODE)")
         files = [base] if base.is_file() else sorted(base.rglob("*.py"))
         for f in files:
-            if any(f == s or s in f.parents for s in skip):
+            if f != base and any(f == s or s in f.parents for s in skip):
                 continue
             h.update(str(f.relative_to(root)).encode() + b"\0")
             h.update(f.read_bytes() + b"\0")
     return h.hexdigest()[:16]
 
 
-def stage_code_key(stage: str) -> str | None:
-    """Fingerprint of the code that makes ``stage`` (None for a stage without ``STAGE_CODE``)."""
+def stage_code_key(stage: str, extra: tuple[str, ...] = ()) -> str | None:
+    """Fingerprint of the code that makes ``stage`` plus ``extra`` paths (None without ``STAGE_CODE``)."""
     paths = STAGE_CODE.get(stage)
-    return None if paths is None else code_fingerprint(paths)
+    return None if paths is None else code_fingerprint((*paths, *sorted(extra)))
 
 
 def spec_key(spec: dict[str, Any]) -> str:
@@ -173,16 +178,18 @@ class StageCache:
         build: Callable[[Path], None],
         timing_name: str | None = None,
         wait: bool = True,
+        code: tuple[str, ...] = (),
     ) -> tuple[Path, str] | None:
         """Directory holding ``stage``'s output for ``spec``, calling ``build(tmp_dir)`` on a miss.
 
         Returns ``(directory, key)``. The timing goes to ``self.timings[timing_name or stage]``
         (accumulated when a stage runs several times in one run, e.g. once per task).
         ``wait=False``: None at once when the entry is missing and another job is building it.
+        ``code``: source paths beyond the stage's ``STAGE_CODE`` (e.g. one task's module) in its key.
         """
-        code = stage_code_key(stage)
-        if code is not None:
-            spec = {**spec, "code": code}
+        fingerprint = stage_code_key(stage, code)
+        if fingerprint is not None:
+            spec = {**spec, "code": fingerprint}
         key = spec_key(spec)
         final = self.path(stage, key)
         start = time.perf_counter()

@@ -11,7 +11,7 @@ from hydra import compose, initialize_config_dir
 
 import experiments.schemas  # noqa: F401  (registers base_config)
 from experiments.locks import FileLock
-from experiments.stages import SPEC_FILE, StageCache, spec_key, stage_code_key
+from experiments.stages import SPEC_FILE, StageCache, spec_key
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 
@@ -59,18 +59,17 @@ def test_labelled_set_makes_the_free_tasks_demos_while_another_job_makes_one(tmp
                       overrides=["experiment=smoke", f"paths.cache_dir={tmp_path / 'cache'}"])
     cache = StageCache(tmp_path / "cache")
     run = Run(cfg, tmp_path / "out", cache)
-    env_key = spec_key({"env": run.node("env"), "code": stage_code_key("demos")})
     busy, free, split = "open_drawer", "close_jar", "train"
-    other = _held_elsewhere(cache, "demos", f"{env_key}-{busy}-{split}")
+    other = _held_elsewhere(cache, "demos", f"{run.demos_key(busy)}-{busy}-{split}")
     result: dict = {}
     worker = threading.Thread(target=lambda: result.update(out=run.labelled_set([busy, free], split, 1)))
     worker.start()
-    free_demo = cache.root / "demos" / env_key / split / free
+    free_demo = cache.root / "demos" / run.demos_key(free) / split / free
     deadline = time.monotonic() + 300
     while not list(free_demo.glob("*/episode.json")):  # made while the busy task is still held
         assert worker.is_alive() and time.monotonic() < deadline, "the free task's demo never came"
         time.sleep(0.2)
-    assert not (cache.root / "demos" / env_key / split / busy).exists()
+    assert not (cache.root / "demos" / run.demos_key(busy) / split / busy).exists()
     other.release()  # the other job is done: this one now makes (here) the busy task's demo too
     worker.join(timeout=300)
     episodes, _key = result["out"]

@@ -87,6 +87,38 @@ def test_code_fingerprint_leaves_out_excluded_files(tmp_path: Path):
     code_fingerprint.cache_clear()
 
 
+def test_a_file_named_inside_an_excluded_folder_counts(tmp_path: Path):
+    from experiments.stages import code_fingerprint
+
+    (tmp_path / "pkg" / "tasks").mkdir(parents=True)
+    (tmp_path / "pkg" / "tasks" / "base.py").write_text("x = 1\n")
+    (tmp_path / "pkg" / "tasks" / "other.py").write_text("y = 1\n")
+    paths = ("pkg", "!pkg/tasks", "pkg/tasks/base.py")
+    first = code_fingerprint(paths, tmp_path)
+    (tmp_path / "pkg" / "tasks" / "other.py").write_text("y = 2\n")
+    code_fingerprint.cache_clear()
+    assert code_fingerprint(paths, tmp_path) == first
+    (tmp_path / "pkg" / "tasks" / "base.py").write_text("x = 2\n")
+    code_fingerprint.cache_clear()
+    assert code_fingerprint(paths, tmp_path) != first
+    code_fingerprint.cache_clear()
+
+
+def test_each_task_keys_its_stages_by_its_own_module():
+    pytest.importorskip("pybullet")
+    from envs.tasks import task_sources
+    from experiments.stages import stage_code_key
+
+    # a task's module and the task modules it imports (the shared cabinet), never the registry
+    assert task_sources("open_drawer") == ["envs/tasks/base.py", "envs/tasks/cabinet.py",
+                                           "envs/tasks/open_drawer.py"]
+    assert task_sources("push_buttons") == ["envs/tasks/base.py", "envs/tasks/push_buttons.py"]
+    keys = {t: stage_code_key("demos", tuple(task_sources(t))) for t in ("open_drawer", "push_buttons")}
+    assert keys["open_drawer"] != keys["push_buttons"] != stage_code_key("demos")
+    with pytest.raises(KeyError, match="unknown task"):
+        task_sources("no_such_task")
+
+
 def test_every_stage_key_covers_its_code(tmp_path: Path):
     from experiments.stages import STAGE_CODE, stage_code_key
 
