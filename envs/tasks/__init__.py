@@ -15,13 +15,12 @@ from envs.tasks.open_drawer import OpenDrawer
 from envs.tasks.place_shape_in_shape_sorter import PlaceShapeInShapeSorter
 from envs.tasks.push_buttons import PushButtons
 from envs.tasks.put_item_in_drawer import PutItemInDrawer
-from envs.tasks.reach_targets import ReachTargets
 from envs.tasks.stack_blocks import StackBlocks
 from envs.tasks.turn_tap import TurnTap
 
 TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (
     OpenDrawer, PutItemInDrawer, StackBlocks, MeatOffGrill, PushButtons, TurnTap,
-    PlaceShapeInShapeSorter, CloseJar, InsertOntoSquarePeg, LightBulbIn, ReachTargets,
+    PlaceShapeInShapeSorter, CloseJar, InsertOntoSquarePeg, LightBulbIn,
 )}
 
 

@@ -12,8 +12,7 @@ pytest.importorskip("pybullet")
 from envs.expert import run_expert  # noqa: E402
 from envs.labeler import PrivilegedLabeler, object_label  # noqa: E402
 
-CASES = [("stack_blocks", 0), ("open_drawer", 1), ("push_buttons", 2), ("put_item_in_drawer", 3),
-         ("reach_targets", 4)]
+CASES = [("stack_blocks", 0), ("open_drawer", 1), ("push_buttons", 2), ("put_item_in_drawer", 3)]
 
 
 @pytest.fixture(scope="module")
