@@ -69,8 +69,9 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
 
     ``pool``: rename onto the example's own task's slot words ("task") or every task's ("all").
     ``vocabulary``: further slot words per task (:func:`slot_vocabulary` of the base planner's
-    corpus) joined to the pools, so that copies also say words no finetuning demo used (a colour
-    only the evaluation goal names). Deterministic in ``seed``. Examples without slot words (or a
+    corpus), renamed and renamed onto like the examples' own, so that copies also say words no
+    finetuning demo used (a colour only the evaluation goal names) and a single demo per task,
+    whose goal varies nothing, still gets copies. Deterministic in ``seed``. Examples without slot words (or a
     pool too small to rename them injectively) get no copies.
     """
     if copies < 0:
@@ -80,12 +81,13 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
     out = list(examples)
     if copies == 0:
         return out
-    slots = slot_words(examples)
-    pools = {t: sorted(set(w) | set((vocabulary or {}).get(t, ()))) for t, w in slots.items()}
-    every = sorted(set().union(*pools.values())) if pools else []
+    # a word the vocabulary knows as a slot of the task is renamed even where the few finetuning
+    # goals do not vary it (one demo per task has no varying goal word at all)
+    slots = {t: sorted(set(w) | set((vocabulary or {}).get(t, ()))) for t, w in slot_words(examples).items()}
+    every = sorted(set().union(*slots.values())) if slots else []
     rng = np.random.default_rng(seed)
     for ex in examples:
-        names = pools.get(ex.task, []) if pool == "task" else every
+        names = slots.get(ex.task, []) if pool == "task" else every
         said = _words(ex.goal) | _words(ex.target) | _words(ex.previous_instruction)
         present = [w for w in slots.get(ex.task, []) if w in said]
         if not present or len(names) < len(present):

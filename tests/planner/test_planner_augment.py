@@ -101,6 +101,27 @@ def test_vocabulary_words_join_their_task_pool_only():
     assert not {w for c in plain for w in c.target.split()} & {"purple", "cyan", "middle"}
 
 
+def test_one_demo_per_task_gets_copies_from_the_vocabulary():
+    # M = 1: each task's single goal varies no word, so only the vocabulary says what a slot is
+    one = [_ex("buttons", "push the red button, then the green button", "release the red button",
+               "move above the green button"),
+           _ex("tap", "turn left tap", None, "reach for the left tap handle")]
+    assert slot_swap(one, copies=5, seed=0)[len(one):] == []
+    vocab = {"buttons": ["blue", "green", "red", "yellow"], "tap": ["left", "right"]}
+    copies = slot_swap(one, copies=5, seed=0, vocabulary=vocab)[len(one):]
+    assert len(copies) == 10
+    for c in copies:
+        if c.task == "buttons":
+            first, second = c.goal.split()[2], c.goal.split()[6]
+            assert first != second and {first, second} <= set(vocab["buttons"])
+            assert c.previous_instruction == f"release the {first} button"
+            assert c.target == f"move above the {second} button"
+        else:
+            side = c.goal.split()[1]
+            assert side in ("left", "right") and c.target == f"reach for the {side} tap handle"
+    assert any(c.task == "tap" and "right" in c.goal for c in copies)
+
+
 def test_swapping_is_seeded_and_off_at_zero():
     base = _buttons()
     assert slot_swap(base, 0, seed=1) == base
