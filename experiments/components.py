@@ -6,6 +6,7 @@ pipeline (``pipeline.py``) reads as data flow and a package's API change is fixe
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,8 +46,13 @@ def env_info(env_cfg: DictConfig) -> EnvInfo:
     return EnvInfo(all_tasks, tuple(t for t in all_tasks if t not in pre), pre)
 
 
+@functools.cache
 def task_sources(task: str) -> tuple[str, ...]:
-    """The source files of one task of the suite (part of the keys of the stages made per task)."""
+    """The source files of one task of the suite (part of the keys of the stages made per task).
+
+    Cached: the pipeline asks at every demos lookup and evaluation, and each answer parses the
+    task's modules.
+    """
     from envs import tasks as suite
 
     return tuple(suite.task_sources(task))

@@ -36,13 +36,13 @@ log = logging.getLogger(__name__)
 CACHE_FORMAT = 1
 SPEC_FILE = "spec.json"
 REPO_ROOT = Path(__file__).resolve().parents[1]
-# The source (files or folders, relative to the repository root) whose code makes each stage; its
-# fingerprint is part of the stage's key. Code a stage reaches only through an upstream stage is
-# covered by that stage's key, which the downstream spec contains.
 # envs/ without its task modules: what every task's demos and evaluation share. Each task's own
 # module (envs.tasks.task_sources) joins the key of the stages made per task, so adding or editing
 # one task keeps the others' demos, policy and evaluations.
 ENVS_SHARED = ("envs", "!envs/tasks", "envs/tasks/base.py")
+# The source (files or folders, relative to the repository root) whose code makes each stage; its
+# fingerprint is part of the stage's key. Code a stage reaches only through an upstream stage is
+# covered by that stage's key, which the downstream spec contains.
 STAGE_CODE: dict[str, tuple[str, ...]] = {
     # The labeler and the expert checker do not make demos: editing them keeps the rendered episodes.
     "demos": (*ENVS_SHARED, "!envs/labeler.py", "!envs/check_expert.py", "rdd/data"),
