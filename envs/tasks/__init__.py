@@ -16,12 +16,11 @@ from envs.tasks.place_shape_in_shape_sorter import PlaceShapeInShapeSorter
 from envs.tasks.push_buttons import PushButtons
 from envs.tasks.put_item_in_drawer import PutItemInDrawer
 from envs.tasks.stack_blocks import StackBlocks
-from envs.tasks.stack_cups import StackCups
 from envs.tasks.turn_tap import TurnTap
 
 TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (
     OpenDrawer, PutItemInDrawer, StackBlocks, MeatOffGrill, PushButtons, TurnTap,
-    PlaceShapeInShapeSorter, CloseJar, InsertOntoSquarePeg, LightBulbIn, StackCups,
+    PlaceShapeInShapeSorter, CloseJar, InsertOntoSquarePeg, LightBulbIn,
 )}
 
 

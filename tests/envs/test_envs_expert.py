@@ -14,10 +14,9 @@ ALL_TASKS = sorted(TASKS)
 DEMO_SEEDS = (1, 2)  # train-range seeds; the `demo` fixture caches each run
 
 
-def test_suite_has_eleven_tasks_and_four_pretraining_tasks():
-    assert len(ALL_TASKS) >= 11
-    assert sorted(task_names(pretraining=True)) == ["close_jar", "insert_onto_square_peg", "light_bulb_in",
-                                                    "stack_cups"]
+def test_suite_has_ten_tasks_and_three_pretraining_tasks():
+    assert len(ALL_TASKS) >= 10
+    assert sorted(task_names(pretraining=True)) == ["close_jar", "insert_onto_square_peg", "light_bulb_in"]
     assert set(task_names(pretraining=False)) | set(task_names(pretraining=True)) == set(ALL_TASKS)
 
 
