@@ -194,6 +194,13 @@ def build_database(episodes, encoder, views, cache, out: Path) -> None:
     db.save(out / "database")
 
 
+def merge_databases(parts: Sequence[Path], out: Path) -> None:
+    """The saved databases of ``parts`` (stage folders, e.g. one per task) as one, in that order."""
+    from rdd.database import SubtaskDatabase
+
+    SubtaskDatabase.concat([load_database(p) for p in parts]).save(out / "database")
+
+
 def calibrate_database(database_dir: Path, episodes, encoder, views, cache, out: Path) -> None:
     """The database in ``database_dir`` plus whole-episode vectors of a sample of its episodes and
     their leave-one-episode-out calibration (``rdd.calibrate``), saved into ``out``."""

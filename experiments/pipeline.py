@@ -303,14 +303,13 @@ class Run:
         when the decomposer asks for it: a stage of its own, so other runs never pay for it)."""
         if self._database is None:
             tasks = self.database_tasks()
-            eps, data_key = self.labelled_set(
-                tasks, "train", int(self.cfg.data.train_episodes_per_task))
-            spec = {"data": data_key, "encoder": self.encoder_key(), "views": self.views}
+            # one part per task, so that the concurrent jobs of a cold sweep embed different tasks
+            parts = each_free_first(tasks, self._database_part)
+            spec = {"parts": [parts[t][1] for t in tasks]}
             path, key = self.cache.get_or_build(
-                "database", spec,
-                lambda tmp: comp.build_database(eps, self.encoder(), self.views,
-                                                self.embedding_cache(), tmp))
+                "database", spec, lambda tmp: comp.merge_databases([parts[t][0] for t in tasks], tmp))
             if self.uses_calibration():
+                eps, _ = self.labelled_set(tasks, "train", int(self.cfg.data.train_episodes_per_task))
                 path, key = self.cache.get_or_build(
                     "calibration", {"database": key},
                     lambda tmp, plain=path: comp.calibrate_database(
@@ -318,6 +317,19 @@ class Run:
             self._database = comp.load_database(path)
             self._database_key = key
         return self._database
+
+    def _database_part(self, task: str, wait: bool) -> tuple[Path, str] | None:
+        """The sub-task database of one task's training episodes (``wait=False``: None at once
+        while another job builds it or generates its demos)."""
+        got = self.expert_labels(task, "train", int(self.cfg.data.train_episodes_per_task), wait=wait)
+        if got is None:
+            return None
+        eps, data_key = got
+        spec = {"data": data_key, "encoder": self.encoder_key(), "views": self.views}
+        return self.cache.get_or_build(
+            "database_part", spec,
+            lambda tmp: comp.build_database(eps, self.encoder(), self.views, self.embedding_cache(), tmp),
+            wait=wait)
 
     def uses_calibration(self) -> bool:
         """Whether the decomposer takes its options from the database's calibration."""

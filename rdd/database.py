@@ -219,6 +219,38 @@ class SubtaskDatabase:
         db.frames = frames
         return db
 
+    @classmethod
+    def concat(cls, parts: Sequence[SubtaskDatabase]) -> SubtaskDatabase:
+        """One database holding the entries (and kept frames) of ``parts`` in order, e.g. per-task
+        databases built apart. Parts must share encoder, weights, views and view normalisation;
+        a calibration is not carried over (it belongs to the database it was fitted on)."""
+        parts = list(parts)
+        if not parts:
+            raise ValueError("concat needs at least one database")
+        first = parts[0]
+        for i, db in enumerate(parts[1:], start=1):
+            for key in ("encoder", "weights_id", "views", "normalize_views"):
+                if db.meta.get(key) != first.meta.get(key):
+                    raise ValueError(f"concat: part {i} has {key}={db.meta.get(key)!r}, "
+                                     f"part 0 has {first.meta.get(key)!r}")
+            if db.frame_dim != first.frame_dim:
+                raise ValueError(f"concat: part {i} has frame_dim {db.frame_dim}, part 0 has {first.frame_dim}")
+        frames: dict[str, np.ndarray] = {}
+        for db in parts:
+            clash = sorted(set(frames) & set(db.frames))
+            if clash:
+                raise ValueError(f"concat: frames of episode(s) {clash} are kept by two parts")
+            frames.update(db.frames)
+        meta = {k: v for k, v in first.meta.items() if k != "calibration"}
+        for key in _PER_ENTRY:
+            meta[key] = [v for db in parts for v in getattr(db, key)]
+        out = cls.from_arrays(np.concatenate([db.begin for db in parts]),
+                              np.concatenate([db.end for db in parts]),
+                              np.concatenate([db.durations for db in parts]),
+                              [label for db in parts for label in db.labels], meta)
+        out.frames = frames
+        return out
+
     # ----------------------------------------------------------------- access
     def __len__(self) -> int:
         return int(self.begin.shape[0])

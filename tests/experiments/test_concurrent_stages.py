@@ -91,3 +91,36 @@ def test_each_free_first_takes_free_items_then_waits_for_busy_ones():
     assert done == {"busy": "BUSY", "a": "A", "b": "B"}
     # free ones first without waiting; the busy one is tried again, then waited for
     assert calls == [("busy", False), ("a", False), ("b", False), ("busy", False), ("busy", True)]
+
+
+def test_database_parts_are_built_per_task_while_another_job_holds_one(tmp_path: Path):
+    pytest.importorskip("pybullet")
+    from experiments.pipeline import Run
+    from rdd.database import SubtaskDatabase
+
+    busy, free = "open_drawer", "turn_tap"
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose(config_name="config",
+                      overrides=["experiment=smoke", f"tasks=[{busy},{free}]", "data.train_episodes_per_task=1",
+                                 "encoder=pixels", f"paths.cache_dir={tmp_path / 'cache'}"])
+    cache = StageCache(tmp_path / "cache")
+    run = Run(cfg, tmp_path / "out", cache)
+    other = _held_elsewhere(cache, "demos", f"{run.demos_key(busy)}-{busy}-train")
+    worker = threading.Thread(target=run.database)
+    worker.start()
+    parts = cache.root / "database_part"
+    deadline = time.monotonic() + 300
+    while not list(parts.glob(f"*/{SPEC_FILE}")):  # the free task's part, made while the busy one is held
+        assert worker.is_alive() and time.monotonic() < deadline, "the free task's part never came"
+        time.sleep(0.2)
+    assert not (cache.root / "database").exists()
+    other.release()
+    worker.join(timeout=300)
+    assert len(list(parts.glob(f"*/{SPEC_FILE}"))) == 2
+    db = run.database()
+    assert sorted(set(db.tasks)) == [busy, free] and db.tasks[0] == busy  # the tasks' order, not the build order
+    # the merged database is the one a single build over both tasks' episodes makes
+    eps, _ = run.labelled_set([busy, free], "train", 1)
+    whole = SubtaskDatabase.build(eps, None, run.encoder(), views=tuple(run.views), cache=run.embedding_cache())
+    assert whole.labels == db.labels and whole.episodes == db.episodes
+    assert (whole.begin == db.begin).all() and (whole.end == db.end).all()

@@ -235,3 +235,29 @@ def test_save_refuses_to_replace_unless_asked_and_keeps_frames(tmp_path, episode
     with pytest.raises(DatabaseError, match="no calibration"):
         SubtaskDatabase.load(tmp_path / "db").calibrated_options()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["db"]  # no temporary left behind
+
+
+def test_concat_of_parts_built_apart_is_the_database_built_at_once(episodes, tmp_path):
+    enc = ProjectionEncoder()
+    extra = make_episode("ep2", 7, 2, [(0, 2), (2, 7)], ["push", "release"])
+    whole = SubtaskDatabase.build([*episodes, extra], None, enc)
+    whole.save(tmp_path / "whole")
+    # parts built and saved separately, as concurrent jobs build per-task parts, then reloaded
+    for name, eps in (("a", episodes), ("b", [extra])):
+        SubtaskDatabase.build(eps, None, enc).save(tmp_path / name)
+    merged = SubtaskDatabase.concat([SubtaskDatabase.load(tmp_path / "a"), SubtaskDatabase.load(tmp_path / "b")])
+    merged.save(tmp_path / "merged")
+    for name in ("begin.npy", "end.npy", "durations.npy", "entries.json"):
+        assert (tmp_path / "merged" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes()
+    a = json.loads((tmp_path / "whole" / "manifest.json").read_text())
+    b = json.loads((tmp_path / "merged" / "manifest.json").read_text())
+    assert a == b
+
+
+def test_concat_refuses_parts_of_different_encoders(episodes):
+    a = SubtaskDatabase.build(episodes[:1], None, ProjectionEncoder(seed=0))
+    b = SubtaskDatabase.build(episodes[1:], None, ProjectionEncoder(seed=1))
+    with pytest.raises(ValueError, match="part 1 has weights_id='proj-6-1'"):
+        SubtaskDatabase.concat([a, b])
+    with pytest.raises(ValueError, match="at least one"):
+        SubtaskDatabase.concat([])
