@@ -29,6 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     from planner.config import PlannerConfig
     from planner.dataset import examples_from_episode
     from planner.planner import Planner
+    from planner.train import CONFIG_FILE
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--base", type=Path, required=True, help="a planner_base stage folder")
@@ -37,9 +38,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=12)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
-    config_file = args.base / "planner_config.json"
+    config_file = args.base / CONFIG_FILE
     if not config_file.is_file():
-        raise SystemExit(f"--base {args.base}: no planner_config.json (not a planner_base stage folder)")
+        raise SystemExit(f"--base {args.base}: no {CONFIG_FILE} (not a planner_base stage folder)")
     cfg = PlannerConfig.from_dict(json.loads(config_file.read_text())["config"])
     examples = []
     for seed in range(args.first_seed, args.first_seed + args.episodes):
