@@ -83,10 +83,13 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
         return out
     # a word the vocabulary knows as a slot of the task is renamed even where the few finetuning
     # goals do not vary it (one demo per task has no varying goal word at all)
-    slots = {t: sorted(set(w) | set((vocabulary or {}).get(t, ()))) for t, w in slot_words(examples).items()}
+    # caption examples (a question instead of the planner prompt) describe their image: renaming
+    # a colour there would make the caption false, so they neither get copies nor define slots
+    steps = [ex for ex in examples if ex.question is None]
+    slots = {t: sorted(set(w) | set((vocabulary or {}).get(t, ()))) for t, w in slot_words(steps).items()}
     every = sorted(set().union(*slots.values())) if slots else []
     rng = np.random.default_rng(seed)
-    for ex in examples:
+    for ex in steps:
         names = slots.get(ex.task, []) if pool == "task" else every
         said = _words(ex.goal) | _words(ex.target) | _words(ex.previous_instruction)
         present = [w for w in slots.get(ex.task, []) if w in said]
@@ -97,5 +100,5 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
             mapping = {w: names[j] for w, j in zip(present, new, strict=True)}
             out.append(replace(ex, goal=_rename(ex.goal, mapping),
                                previous_instruction=_rename(ex.previous_instruction, mapping),
-                               target=_rename(ex.target, mapping)))
+                               target=_rename(ex.target, mapping), scene=_rename(ex.scene, mapping)))
     return out

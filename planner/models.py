@@ -68,7 +68,7 @@ def _image_processor(cfg: PlannerConfig):
 
     s = cfg.image_size
     kw = dict(size={"shortest_edge": s}, crop_size={"height": s, "width": s})
-    if cfg.vision_tower == "effnet_lite0":
+    if cfg.vision_tower != "clip":
         from planner.vision import EFFNET_MEAN, EFFNET_STD
 
         # the Lite models' own preprocessing (bilinear resize, x * 2 - 1), as rdd.encoders does it
@@ -112,12 +112,12 @@ def build_tiny_model(cfg: PlannerConfig, tokenizer) -> torch.nn.Module:
         pad_token_id=tokenizer.pad_token_id, bos_token_id=tokenizer.bos_token_id,
         eos_token_id=tokenizer.eos_token_id, tie_word_embeddings=False)
     vision_hidden, vision_layers = cfg.vision_hidden, cfg.vision_layers
-    if cfg.vision_tower == "effnet_lite0":
-        from planner.vision import EFFNET_DIM
+    if cfg.vision_tower != "clip":
+        from planner.vision import TOWER_DIMS
 
         # the CLIP tower is only a placeholder replaced by the frozen encoder (install_vision_tower);
         # its width sets the projector's input size
-        vision_hidden, vision_layers = EFFNET_DIM, 0
+        vision_hidden, vision_layers = TOWER_DIMS[cfg.vision_tower], 0
     vision = CLIPVisionConfig(
         hidden_size=vision_hidden, intermediate_size=2 * vision_hidden,
         num_hidden_layers=vision_layers, num_attention_heads=cfg.vision_heads,

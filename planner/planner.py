@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from planner.captions import CAPTION_MAX_TOKENS, CAPTION_QUESTION
 from planner.config import PlannerConfig
 from planner.dataset import PlannerCollator, PlannerExample, encode_prompt
 from planner.models import load_model
@@ -21,6 +22,9 @@ class Planner:
                  device: str | None = None):
         self.cfg = cfg
         self.device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        # describe_scene: the base (not the adapter, which never trained on captions) describes
+        self._describer = (None if not cfg.describe_scene else
+                           self if adapter_dir is None else Planner(cfg, base_dir, None, self.device))
         model, self.processor = load_model(base_dir, cfg, device=self.device)
         if adapter_dir is not None:
             from peft import PeftModel
@@ -37,23 +41,35 @@ class Planner:
         self.empty_outputs = 0  # how often a generation was empty and the fallback was used
 
     @torch.no_grad()
-    def predict(self, queries: Sequence[tuple[np.ndarray, str, str | None]],
-                batch_size: int = 16) -> list[str]:
-        """Next instruction for each (image, goal, previous_instruction)."""
+    def predict(self, queries: Sequence[tuple], batch_size: int = 16,
+                max_new_tokens: int | None = None) -> list[str]:
+        """Next instruction for each (image, goal, previous_instruction[, question]).
+
+        A query with a question (a scene caption's) asks that instead of the planner prompt; with
+        ``describe_scene`` the others state the planner's description of their image first.
+        """
+        queries = [(*q, None)[:4] for q in queries]
+        scenes: list[str | None] = [None] * len(queries)
+        ask = [i for i, q in enumerate(queries) if q[3] is None]
+        if self._describer is not None and ask:
+            for i, text in zip(ask, self._describer.describe([queries[i][0] for i in ask], batch_size),
+                               strict=True):
+                scenes[i] = text
         out: list[str] = []
         tok = self.processor.tokenizer
         for i in range(0, len(queries), batch_size):
             chunk = queries[i: i + batch_size]
-            items = [encode_prompt(self.processor, img, goal, prev) for img, goal, prev in chunk]
+            items = [encode_prompt(self.processor, *q, scene)
+                     for q, scene in zip(chunk, scenes[i: i + batch_size], strict=True)]
             batch = self._collate(items)
             batch = {k: v.to(self.device) for k, v in batch.items()}
             if "pixel_values" in batch:
                 batch["pixel_values"] = batch["pixel_values"].to(self.model.dtype)
-            gen = self.model.generate(**batch, max_new_tokens=self.cfg.max_new_tokens,
+            gen = self.model.generate(**batch, max_new_tokens=max_new_tokens or self.cfg.max_new_tokens,
                                       do_sample=False, num_beams=1, eos_token_id=self._stop,
                                       pad_token_id=tok.pad_token_id)
             new = gen[:, batch["input_ids"].shape[1]:]
-            for (_img, goal, prev), ids in zip(chunk, new, strict=True):
+            for (_img, goal, prev, *_question), ids in zip(chunk, new, strict=True):
                 text = clean_output(tok.decode(ids, skip_special_tokens=True))
                 if not text:
                     # an empty answer carries no new sub-task: keep the robot on the previous one
@@ -63,6 +79,18 @@ class Planner:
                 out.append(text)
         return out
 
+    def describe(self, images: Sequence[np.ndarray], batch_size: int = 16) -> list[str]:
+        """The model's scene caption of each image (``planner.captions``' question)."""
+        return self.predict([(img, "", None, CAPTION_QUESTION) for img in images], batch_size,
+                            max_new_tokens=CAPTION_MAX_TOKENS)
+
+    def with_scenes(self, examples: Sequence[PlannerExample], batch_size: int = 16) -> list[PlannerExample]:
+        """``examples`` whose prompts state this model's description of their images."""
+        from dataclasses import replace
+
+        texts = self.describe([e.image for e in examples], batch_size)
+        return [replace(e, scene=t) for e, t in zip(examples, texts, strict=True)]
+
     def next_instruction(self, image: np.ndarray, goal: str, previous_instruction: str | None) -> str:
         """The next sub-task instruction (greedy, at most ``max_new_tokens`` tokens)."""
         return self.predict([(image, goal, previous_instruction)])[0]
@@ -70,7 +98,7 @@ class Planner:
     def hits(self, examples: Sequence[PlannerExample],
              batch_size: int = 16) -> tuple[list[str], list[bool]]:
         """Predictions for ``examples`` and whether each equals its target (whitespace/full stop insensitive)."""
-        preds = self.predict([(e.image, e.goal, e.previous_instruction) for e in examples],
+        preds = self.predict([(e.image, e.goal, e.previous_instruction, e.question) for e in examples],
                              batch_size=batch_size)
         return preds, [p == clean_output(e.target) for p, e in zip(preds, examples, strict=True)]
 

@@ -19,8 +19,17 @@ def _sentence(text: str) -> str:
     return text if text.endswith((".", "!", "?")) else text + "."
 
 
-def user_prompt(goal: str, previous_instruction: str | None) -> str:
-    """The user turn: image placeholder, goal, previous instruction (or the start marker), question."""
+def user_prompt(goal: str, previous_instruction: str | None, question: str | None = None,
+                scene: str | None = None) -> str:
+    """The user turn: image placeholder, goal, previous instruction (or the start marker), question.
+
+    ``question``: another question about the image instead of the planner's (a scene caption's).
+    ``scene``: the planner's own description of the image (``describe_scene``), stated before the question.
+    """
+    if question is not None:
+        if not str(question).strip():
+            raise ValueError("a question prompt needs a non-empty question")
+        return f"{IMAGE_TOKEN}\n{' '.join(str(question).split())}"
     if not str(goal).strip():
         raise ValueError("planner prompt needs a non-empty task goal")
     parts = [f"{IMAGE_TOKEN}\nThe task goal is: {_sentence(goal)}"]
@@ -29,23 +38,27 @@ def user_prompt(goal: str, previous_instruction: str | None) -> str:
     else:
         parts.append("In the previous step, the robot arm was given the following instruction: "
                      f"{_sentence(previous_instruction)}")
+    if scene is not None and str(scene).strip():
+        parts.append(f"The scene: {_sentence(scene)}")
     parts.append(QUESTION)
     return " ".join(parts)
 
 
-def render_prompt(tokenizer, goal: str, previous_instruction: str | None) -> str:
+def render_prompt(tokenizer, goal: str, previous_instruction: str | None, question: str | None = None,
+                  scene: str | None = None) -> str:
     """The chat-formatted prompt text, ending where the assistant's answer starts."""
-    messages = [{"role": "user", "content": user_prompt(goal, previous_instruction)}]
+    messages = [{"role": "user", "content": user_prompt(goal, previous_instruction, question, scene)}]
     return tokenizer.apply_chat_template(messages, tokenize=False, add_generation_prompt=True)
 
 
-def render_target(tokenizer, goal: str, previous_instruction: str | None, target: str) -> str:
+def render_target(tokenizer, goal: str, previous_instruction: str | None, target: str,
+                  question: str | None = None, scene: str | None = None) -> str:
     """The text the model must produce after the prompt (answer plus the template's end marker)."""
     target = " ".join(str(target).split())
     if not target:
         raise ValueError("planner target instruction is empty")
-    prompt = render_prompt(tokenizer, goal, previous_instruction)
-    messages = [{"role": "user", "content": user_prompt(goal, previous_instruction)},
+    prompt = render_prompt(tokenizer, goal, previous_instruction, question, scene)
+    messages = [{"role": "user", "content": user_prompt(goal, previous_instruction, question, scene)},
                 {"role": "assistant", "content": target}]
     full = tokenizer.apply_chat_template(messages, tokenize=False)
     if not full.startswith(prompt):

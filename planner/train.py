@@ -131,7 +131,7 @@ def tokenizer_corpus(examples: Iterable[PlannerExample]) -> list[str]:
     """Texts the tiny tokenizer is trained on: prompts (goals, previous instructions) and targets."""
     out = []
     for ex in examples:
-        out.append(user_prompt(ex.goal, ex.previous_instruction))
+        out.append(user_prompt(ex.goal, ex.previous_instruction, ex.question, ex.scene))
         out.append(ex.target)
     return out
 

