@@ -4,8 +4,8 @@ LLaVA's first training stage aligns its projector on image-caption pairs; the pa
 arrives at finetuning knowing what a plate with a block on it looks like. A tiny base trained only
 on planner steps memorises its few hundred images instead (docs/results.md "The planner's sight").
 These captions give it that grounding from the frames of the demonstrations it is built from:
-what the gripper holds, which object rests on which, and which drawers, buttons and taps are
-actuated, read from ``episode.meta["privileged"]`` (``envs.record``). They name objects only, never
+which object rests on which, and which drawers, buttons and taps are actuated, read from
+``episode.meta["privileged"]`` (``envs.record``). They name objects only, never
 a sub-task or an instruction, so no decomposition leaks into the base.
 """
 
@@ -18,7 +18,7 @@ import numpy as np
 
 from planner.dataset import PlannerExample
 
-CAPTION_QUESTION = "Describe the scene: what does the gripper hold, and what rests on what?"
+CAPTION_QUESTION = "Describe the scene: what rests on what?"
 CAPTION_MAX_TOKENS = 64  # a caption runs longer than an instruction
 # a resting object's centre lies within this of the supporter's top plus its own half height
 # (blocks settle and lids seat a few millimetres either way)
@@ -41,7 +41,7 @@ def _rests_on(pos: np.ndarray, sizes: np.ndarray, a: int, b: int) -> bool:
 
 
 def scene_caption(meta: dict, frame: int) -> str:
-    """What the gripper holds, what rests on what and the articulations' states at ``frame``."""
+    """What rests on what (a held object is left out) and the articulations' states at ``frame``."""
     priv = meta.get("privileged")
     if priv is None or "object_positions" not in priv:
         raise ValueError("scene captions need the simulator's privileged record "
@@ -52,7 +52,9 @@ def scene_caption(meta: dict, frame: int) -> str:
         raise ValueError(f"privileged record has {len(pos)} objects but meta lists {len(objects)}")
     sizes = np.asarray([o["size"] for o in objects], dtype=np.float64).reshape(len(objects), 3)
     held = int(priv["held_object"][frame]) if "held_object" in priv else -1
-    parts = [f"the gripper holds {_noun(objects[held])}" if held >= 0 else "the gripper holds nothing"]
+    # what the gripper holds is left out: at a sub-task's first frame it is just closing or opening,
+    # and a caption saying either contradicted the previous instruction (docs/results.md)
+    parts = []
     for a in range(len(objects)):
         if a == held:
             continue
@@ -65,7 +67,7 @@ def scene_caption(meta: dict, frame: int) -> str:
         frac = (float(states[frame][j]) - closed) / (opened - closed) if opened != closed else 0.0
         on, off = ACTUATED.get(art["kind"], ("actuated", "at rest"))
         parts.append(f"the {str(art['name']).replace('_', ' ')} is {on if frac >= 0.5 else off}")
-    return ". ".join(parts) + "."
+    return ". ".join(parts or ["no object rests on another"]) + "."
 
 
 def caption_examples(episodes: Iterable, stride: int, view: str = "front") -> list[PlannerExample]:

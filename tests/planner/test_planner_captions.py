@@ -18,30 +18,32 @@ BLOCK = 0.05
 
 
 def _meta(frames: int = 3) -> dict:
-    """A plate, two red blocks and a drawer: frame 0 all apart, 1 one block held and the drawer open,
-    2 both blocks stacked on the plate."""
+    """A plate, two red blocks and a drawer: frame 0 all apart, 1 one block held on the plate and the
+    drawer open, 2 both blocks stacked on the plate."""
     objects = [{"name": "plate", "type": "plate", "color": "grey", "size": [0.1, 0.1, 0.01]},
                {"name": "red_block_0", "type": "block", "color": "red", "size": [BLOCK] * 3},
                {"name": "red_block_1", "type": "block", "color": "red", "size": [BLOCK] * 3}]
     pos = np.zeros((frames, 3, 3), np.float32)
     pos[:, 0] = (0.5, 0.0, 0.005)
     pos[0, 1], pos[0, 2] = (0.4, 0.2, 0.025), (0.4, -0.2, 0.025)
-    pos[1, 1], pos[1, 2] = (0.4, 0.2, 0.2), (0.4, -0.2, 0.025)
+    # held, just grasped where it rests on the plate: a held object is never said to rest
+    pos[1, 1], pos[1, 2] = (0.5, 0.0, PLATE_TOP + BLOCK / 2), (0.4, -0.2, 0.025)
     pos[2, 1] = (0.501, 0.002, PLATE_TOP + BLOCK / 2 + 0.003)  # settled a few mm off
     pos[2, 2] = (0.499, -0.003, PLATE_TOP + 1.5 * BLOCK)
     states = np.array([[0.0], [0.2], [0.05]], np.float32)[:frames]
     priv = {"object_positions": pos, "held_object": np.array([-1, 1, -1], np.int32)[:frames],
-            "articulation_states": states}
+            "articulation_states": states[:, :1]}
     return {"objects": objects, "privileged": priv,
             "articulations": [{"name": "top_drawer", "kind": "drawer", "closed": 0.0, "open": 0.2}]}
 
 
-def test_caption_states_what_is_held_stacked_and_open():
+def test_caption_states_what_rests_on_what_and_what_is_open():
     meta = _meta()
-    assert scene_caption(meta, 0) == "the gripper holds nothing. the top drawer is shut."
-    assert scene_caption(meta, 1) == "the gripper holds the red block. the top drawer is open."
-    assert scene_caption(meta, 2) == ("the gripper holds nothing. the red block is on the grey plate. "
+    assert scene_caption(meta, 0) == "the top drawer is shut."
+    assert scene_caption(meta, 1) == "the top drawer is open."
+    assert scene_caption(meta, 2) == ("the red block is on the grey plate. "
                                       "the red block is on the red block. the top drawer is shut.")
+    assert scene_caption({**meta, "articulations": []}, 0) == "no object rests on another."
 
 
 def test_caption_without_privileged_record_says_what_is_missing():

@@ -29,8 +29,10 @@ def _first_step_scene(side: str, seeds) -> tuple[np.ndarray, str]:
 
 def test_same_text_different_image_gives_a_different_next_instruction(tmp_path):
     torch.set_num_threads(1)
+    # lr 2e-3: at 3e-3 the base collapsed to one side on one machine of this kind (0.33 on the
+    # held-out scenes) and learnt it on another; at 2e-3, 40/40 with pretraining seeds 0, 1 and 2
     cfg = PlannerConfig(kind="tiny_llava", vocab_size=400, max_new_tokens=16,
-                        pretrain=dict(lr=3e-3, epochs=25, batch_size=8, warmup_ratio=0.1))
+                        pretrain=dict(lr=2e-3, epochs=25, batch_size=8, warmup_ratio=0.1))
     # One task: mixed with pick_and_lift at this budget the tiny base had not yet learnt the side
     # (0.33 on the held-out scenes, measured), on its own it has (40/40).
     train = make_episodes(["open_drawer"], range(48))
