@@ -89,9 +89,11 @@ def _captions(cfg, args, episodes) -> int:
     from planner.prompts import clean_output
 
     examples = caption_examples(episodes, args.captions, cfg.view)
-    cfg.max_new_tokens = max(cfg.max_new_tokens, 96)  # a caption is longer than an instruction
-    preds, hits = Planner(cfg, args.base).hits(examples)
-    facts = [_on_facts(p) == _on_facts(clean_output(e.target)) for p, e in zip(preds, examples, strict=True)]
+    # the caption path describe_scene uses (its token limit included)
+    preds = Planner(cfg, args.base).describe([e.image for e in examples])
+    targets = [clean_output(e.target) for e in examples]
+    hits = [p == t for p, t in zip(preds, targets, strict=True)]
+    facts = [_on_facts(p) == _on_facts(t) for p, t in zip(preds, targets, strict=True)]
     figures = {"base": str(args.base), "task": args.task, "frames": len(examples),
                "caption_exact_match": float(np.mean(hits)), "on_facts_match": float(np.mean(facts))}
     print(json.dumps(figures, indent=2))

@@ -9,8 +9,8 @@ sight"). This takes the planner out: every ``--stride``-th frame of the train ep
 episodes with their privileged record, e.g. the stage cache's ``demos/<key>/train/stack_blocks``)
 is labelled from the simulator "a block rests on the plate" or not, and a classifier is trained on
 them: ``clip``, the planner's tiny CLIP tower (its default sizes) from scratch plus a linear head;
-``effnet_mid``, a small trained head (per-cell MLP, max over cells) on the frozen EfficientNet-Lite0
-middle stages (28, 14 and 7 cells pooled to 7 x 7, 472 channels). Scored per epoch on every test
+``effnet_mid``, a small trained head (per-cell MLP, max over cells) on the planner's frozen
+``effnet_lite0_mid`` tower (EfficientNet-Lite0's 28, 14 and 7 cell stages pooled to 7 x 7, 472 channels). Scored per epoch on every test
 frame and on the test episodes' "lift -> move above" segment starts (the planner's image-dependent
 boundaries), beside the majority rate. Figures are printed (never asserted); ``--out`` writes them.
 """
@@ -74,21 +74,12 @@ def _pixels(images: np.ndarray, size: int, mean: float, std: float) -> torch.Ten
 
 @torch.no_grad()
 def _effnet_mid(images: np.ndarray) -> torch.Tensor:
-    from rdd.encoders.effnet_lite0 import build
+    """The planner's ``effnet_lite0_mid`` tower's 49 cell tokens (its CLS-like mean token dropped)."""
+    from planner.vision import EFFNET_RESOLUTION, EffNetVisionTower
 
-    net = build().model.eval()
-    out = []
-    for i in range(0, len(images), 32):
-        h = _pixels(images[i:i + 32], 224, 0.5, 0.5)
-        h = net._swish(net._bn0(net._conv_stem(h)))
-        last = {}
-        for block in net._blocks:
-            h = block(h)
-            last[h.shape[-1]] = h
-        maps = [torch.nn.functional.adaptive_avg_pool2d(last[s], 7) for s in (28, 14, 7)]
-        out.append(torch.cat([torch.nn.functional.layer_norm(m.flatten(2).transpose(1, 2), (m.shape[1],))
-                              for m in maps], dim=-1))
-    return torch.cat(out)
+    tower = EffNetVisionTower("mid")
+    return torch.cat([tower(_pixels(images[i:i + 32], EFFNET_RESOLUTION, 0.5, 0.5)).last_hidden_state[:, 1:]
+                      for i in range(0, len(images), 32)])
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -69,7 +70,7 @@ class Planner:
                                       do_sample=False, num_beams=1, eos_token_id=self._stop,
                                       pad_token_id=tok.pad_token_id)
             new = gen[:, batch["input_ids"].shape[1]:]
-            for (_img, goal, prev, *_question), ids in zip(chunk, new, strict=True):
+            for (_img, goal, prev, _question), ids in zip(chunk, new, strict=True):
                 text = clean_output(tok.decode(ids, skip_special_tokens=True))
                 if not text:
                     # an empty answer carries no new sub-task: keep the robot on the previous one
@@ -86,8 +87,6 @@ class Planner:
 
     def with_scenes(self, examples: Sequence[PlannerExample], batch_size: int = 16) -> list[PlannerExample]:
         """``examples`` whose prompts state this model's description of their images."""
-        from dataclasses import replace
-
         texts = self.describe([e.image for e in examples], batch_size)
         return [replace(e, scene=t) for e, t in zip(examples, texts, strict=True)]
 
