@@ -13,7 +13,9 @@ Stable contract (extend additively only). An episode saved with
    object_quaternions   (T,K,4) f32  world orientation, quaternion xyzw
    articulation_states  (T,M) f32    drawer opening (m, 0 = shut), button depression (m,
                                      0 = up), tap angle (rad, 0 = shut); order = meta
-                                     articulations; M may be 0
+                                     articulations; M may be 0. A button's lamp lights
+                                     once its state reaches half the travel and stays lit
+                                     (the running maximum of the state tells it)
    held_object          (T,) i32     index into the objects held by the gripper, -1 = none
    success              (T,) bool    the task's success detector evaluated at that frame
    ==================== ============ =====================================================

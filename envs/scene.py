@@ -194,6 +194,10 @@ class Scene:
             return COLORS[color]
         return tuple(color)
 
+    def recolor(self, body: int, link: int, color) -> None:
+        """Repaint every visual shape of one link (``-1`` = the base), e.g. a lamp lighting up."""
+        self.p.changeVisualShape(body, link, rgbaColor=self._rgba(color))
+
     def add_box(self, half_extents, position, quaternion=(0, 0, 0, 1), color="grey", mass=0.1,
                 friction=1.0) -> int:
         """A box body; mass 0 makes it static."""

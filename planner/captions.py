@@ -4,7 +4,7 @@ LLaVA's first training stage aligns its projector on image-caption pairs; the pa
 arrives at finetuning knowing what a plate with a block on it looks like. A tiny base trained only
 on planner steps memorises its few hundred images instead (docs/results.md "The planner's sight").
 These captions give it that grounding from the frames of the demonstrations it is built from:
-which object rests on which, and which drawers, buttons and taps are actuated, read from
+which object rests on which, which drawers and taps are open and which buttons are lit, read from
 ``episode.meta["privileged"]`` (``envs.record``). They name objects only, never
 a sub-task or an instruction, so no decomposition leaks into the base.
 """
@@ -23,7 +23,9 @@ CAPTION_MAX_TOKENS = 64  # a caption runs longer than an instruction
 # a resting object's centre lies within this of the supporter's top plus its own half height
 # (blocks settle and lids seat a few millimetres either way)
 REST_Z_TOLERANCE = 0.02
-ACTUATED = {"drawer": ("open", "shut"), "button": ("pressed", "up"), "tap": ("open", "shut")}
+ACTUATED = {"drawer": ("open", "shut"), "button": ("lit", "unlit"), "tap": ("open", "shut")}
+# kinds whose caption state latches: a button springs back, but its lamp stays lit (envs.record)
+LATCHED = {"button"}
 
 
 def _noun(obj: dict) -> str:
@@ -64,18 +66,29 @@ def scene_caption(meta: dict, frame: int) -> str:
     states = priv.get("articulation_states")
     for j, art in enumerate(meta.get("articulations", [])):
         closed, opened = float(art["closed"]), float(art["open"])
-        frac = (float(states[frame][j]) - closed) / (opened - closed) if opened != closed else 0.0
+        if opened == closed:
+            frac = 0.0
+        else:
+            fracs = (np.asarray(states[: frame + 1], dtype=np.float64)[:, j] - closed) / (opened - closed)
+            frac = float(fracs.max() if art["kind"] in LATCHED else fracs[-1])
         on, off = ACTUATED.get(art["kind"], ("actuated", "at rest"))
         parts.append(f"the {str(art['name']).replace('_', ' ')} is {on if frac >= 0.5 else off}")
     return ". ".join(parts or ["no object rests on another"]) + "."
 
 
-def caption_examples(episodes: Iterable, stride: int, view: str = "front") -> list[PlannerExample]:
-    """One caption example every ``stride`` frames of each episode (its last frame included)."""
+def caption_examples(episodes: Iterable, stride: int, view: str = "front", *,
+                     skip_unrecorded: bool = False) -> list[PlannerExample]:
+    """One caption example every ``stride`` frames of each episode (its last frame included).
+
+    ``skip_unrecorded``: episodes without a privileged record (real robot data) give none
+    instead of an error; a record that is there but malformed still fails.
+    """
     if stride < 1:
         raise ValueError(f"caption frame stride must be >= 1, got {stride}")
     out: list[PlannerExample] = []
     for ep in episodes:
+        if skip_unrecorded and "privileged" not in ep.meta:
+            continue
         picks: Sequence[int] = sorted(set(range(0, ep.num_frames, stride)) | {ep.num_frames - 1})
         try:
             texts = [scene_caption(ep.meta, f) for f in picks]

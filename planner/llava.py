@@ -59,7 +59,8 @@ class LlavaPlanner:
 
         ``vocabulary_episodes``: labelled episodes whose words the base knows without training on
         them (their slot words join the finetune's slot swapping); with ``caption_frame_stride``
-        their frames, like the pretraining demos', are captioned (scene facts, no instruction).
+        their frames, like the pretraining demos', are captioned (scene facts, no instruction)
+        where they carry a simulator record (real robot episodes are only read for their words).
         """
         from planner.augment import slot_vocabulary
         from planner.captions import caption_examples, with_true_scenes
@@ -70,7 +71,8 @@ class LlavaPlanner:
             examples = with_true_scenes(examples, episodes)
         stride = self.config.pretrain.caption_frame_stride
         if stride:
-            examples += caption_examples([*episodes, *vocabulary_episodes], stride, self.config.view)
+            examples += caption_examples(episodes, stride, self.config.view)
+            examples += caption_examples(vocabulary_episodes, stride, self.config.view, skip_unrecorded=True)
         return pretrain_base(self.config, examples, out_dir,
                              extra_corpus=list(extra_corpus),
                              slot_vocabulary=slot_vocabulary(vocabulary_episodes), progress=progress)

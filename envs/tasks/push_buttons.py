@@ -13,7 +13,10 @@ COLORS = ("red", "green", "blue", "yellow", "purple", "cyan")
 BASE_H = 0.02
 CAP_R, CAP_H = 0.022, 0.02
 TRAVEL = 0.015
-PRESSED = 0.008  # depression (m) that counts as a press
+# depression (m) that counts as a press: half the travel, where the privileged record's
+# normalised button state reads "pressed" (envs.record)
+PRESSED = TRAVEL / 2
+UNLIT, LIT = "grey", "white"  # a button's base lights up once it has been pressed, as RLBench's
 FINGERTIP = 0.011  # closed fingertips reach this far below the grasp point
 
 
@@ -28,13 +31,13 @@ class PushButtons(Task):
         return [{"count": n} for n in (1, 2, 3)]
 
     def build(self, scene: Scene, rng: np.random.Generator) -> None:
-        """Three spring-loaded buttons with distinct colours."""
+        """Three spring-loaded buttons with distinct colours on grey bases that light up when pressed."""
         colors = [COLORS[i] for i in rng.choice(len(COLORS), size=3, replace=False)]
         xy = sample_positions(rng, 3, (0.38, 0.6), (-0.22, 0.22), 0.12)
         self.sequence = [colors[i] for i in rng.permutation(3)[: self.params["count"]]]
         self.buttons = {}
         for c, p in zip(colors, xy, strict=True):
-            base = [("box", (0.035, 0.035, BASE_H / 2), (0, 0, BASE_H / 2), "grey")]
+            base = [("box", (0.035, 0.035, BASE_H / 2), (0, 0, BASE_H / 2), UNLIT)]
             cap = [("cylinder", (CAP_R, CAP_H), (0, 0, 0), c)]
             body = scene.add_articulated(base, (*p, TABLE_TOP), [{
                 "parts": cap, "parent": 0, "offset": (0, 0, BASE_H + CAP_H / 2), "joint": "prismatic",
@@ -49,10 +52,12 @@ class PushButtons(Task):
         scene.step_hooks.append(self._watch)
 
     def _watch(self) -> None:
-        """Latch the order in which buttons are first pressed."""
+        """Latch the order in which buttons are first pressed and light their bases: the buttons
+        spring back, so only the lamp shows which ones are done (RLBench's top plates turn green)."""
         for c in self.buttons:
-            if c not in self.pressed and self.art_state(f"{c}_button") > PRESSED:
+            if c not in self.pressed and self.art_state(f"{c}_button") >= PRESSED:
                 self.pressed.append(c)
+                self.scene.recolor(self.buttons[c], -1, LIT)
 
     def goal(self) -> str:
         """E.g. 'push the red button, then the blue button'."""

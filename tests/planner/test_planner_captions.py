@@ -46,6 +46,20 @@ def test_caption_states_what_rests_on_what_and_what_is_open():
     assert scene_caption({**meta, "articulations": []}, 0) == "no object rests on another."
 
 
+def test_a_pressed_button_stays_lit_after_it_springs_back():
+    """Buttons spring back, so only their lamps tell which were pressed: the caption latches."""
+    travel = 0.015
+    # red pressed at frame 1 (past half travel) and back up at 2; blue only nudged (a third of travel)
+    states = np.array([[0.0, 0.0], [0.012, 0.0], [0.0, 0.005], [0.0, 0.0]], np.float32)
+    meta = {"objects": [], "privileged": {"object_positions": np.zeros((4, 0, 3), np.float32),
+                                          "articulation_states": states},
+            "articulations": [{"name": "red_button", "kind": "button", "closed": 0.0, "open": travel},
+                              {"name": "blue_button", "kind": "button", "closed": 0.0, "open": travel}]}
+    assert scene_caption(meta, 0) == "the red button is unlit. the blue button is unlit."
+    for frame in (1, 2, 3):
+        assert scene_caption(meta, frame) == "the red button is lit. the blue button is unlit."
+
+
 def test_caption_without_privileged_record_says_what_is_missing():
     with pytest.raises(ValueError, match="privileged"):
         scene_caption({"objects": []}, 0)
@@ -67,6 +81,21 @@ def test_caption_examples_every_kth_frame_and_the_last():
     assert "on the grey plate" in ex[1].target
     with pytest.raises(ValueError, match="stride"):
         caption_examples([_episode()], stride=0)
+
+
+def test_real_episodes_without_a_record_are_skipped_only_when_asked():
+    """Vocabulary episodes from real robots carry no simulator record: read for words, not captioned."""
+    real = _episode()
+    real.meta = {k: v for k, v in real.meta.items() if k != "privileged"}
+    real.name = "real"
+    with pytest.raises(ValueError, match="'real'.*privileged"):
+        caption_examples([real], stride=1)
+    ex = caption_examples([real, _episode()], stride=1, skip_unrecorded=True)
+    assert {e.episode for e in ex} == {"ep"} and len(ex) == 3
+    broken = _episode()
+    broken.meta["privileged"] = {}
+    with pytest.raises(ValueError, match="privileged"):
+        caption_examples([broken], stride=1, skip_unrecorded=True)
 
 
 def test_slot_swap_never_renames_a_caption():
