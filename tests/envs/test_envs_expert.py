@@ -82,3 +82,31 @@ def test_at_least_half_the_tasks_have_four_sub_tasks(demo):
     counts = {task: len(demo(task, DEMO_SEEDS[0]).episode.segments) for task in ALL_TASKS}
     assert sum(c >= 4 for c in counts.values()) >= len(counts) / 2, counts
     assert min(counts.values()) >= 2, counts
+
+
+def test_a_pressed_button_lights_up_and_stays_lit():
+    """Buttons spring back; the lamp on the base (RLBench's top plate) is what shows they were pressed."""
+    from envs.expert import build_task
+    from envs.scene import COLORS
+    from envs.tasks.push_buttons import LIT, TRAVEL, UNLIT
+
+    scene, task = build_task("push_buttons", 20000, render=False)
+    try:
+        def base_rgba(color: str) -> tuple:
+            rows = [r for r in scene.p.getVisualShapeData(task.buttons[color]) if r[1] == -1]
+            return tuple(round(float(v), 3) for v in rows[0][7])
+
+        def rgba(name: str) -> tuple:
+            return tuple(round(v, 3) for v in COLORS[name])
+
+        first, *others = list(task.buttons)
+        assert all(base_rgba(c) == rgba(UNLIT) for c in task.buttons)
+        scene.p.resetJointState(task.buttons[first], 0, -TRAVEL)  # held fully down for one step
+        scene.step(1)
+        assert task.pressed == [first]
+        scene.step(240)  # released: the spring returns it to the top
+        assert task.art_state(f"{first}_button") < 0.2 * TRAVEL
+        assert base_rgba(first) == rgba(LIT)
+        assert all(base_rgba(c) == rgba(UNLIT) for c in others)
+    finally:
+        scene.close()
