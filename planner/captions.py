@@ -23,7 +23,10 @@ CAPTION_MAX_TOKENS = 64  # a caption runs longer than an instruction
 # a resting object's centre lies within this of the supporter's top plus its own half height
 # (blocks settle and lids seat a few millimetres either way)
 REST_Z_TOLERANCE = 0.02
-ACTUATED = {"drawer": ("open", "shut"), "button": ("lit", "unlit"), "tap": ("open", "shut")}
+# (state when actuated, at rest); None: not said at rest. Naming every unlit button put the goal's
+# distractor colours into every push_buttons prompt and the planner answered with them
+# (docs/results.md "Describe, then plan")
+ACTUATED = {"drawer": ("open", "shut"), "button": ("lit", None), "tap": ("open", "shut")}
 # kinds whose caption state latches: a button springs back, but its lamp stays lit (envs.record)
 LATCHED = {"button"}
 
@@ -72,6 +75,8 @@ def scene_caption(meta: dict, frame: int) -> str:
             fracs = (np.asarray(states[: frame + 1], dtype=np.float64)[:, j] - closed) / (opened - closed)
             frac = float(fracs.max() if art["kind"] in LATCHED else fracs[-1])
         on, off = ACTUATED.get(art["kind"], ("actuated", "at rest"))
+        if off is None and frac < 0.5:
+            continue
         parts.append(f"the {str(art['name']).replace('_', ' ')} is {on if frac >= 0.5 else off}")
     return ". ".join(parts or ["no object rests on another"]) + "."
 
