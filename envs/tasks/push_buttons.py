@@ -13,8 +13,8 @@ COLORS = ("red", "green", "blue", "yellow", "purple", "cyan")
 BASE_H = 0.02
 CAP_R, CAP_H = 0.022, 0.02
 TRAVEL = 0.015
-# depression (m) that counts as a press: half the travel, where the privileged record's
-# normalised button state reads "pressed" (envs.record)
+# depression (m) that counts as a press and lights the lamp: half the travel, as envs.record
+# documents, so the lamp can be read back from the record's button states
 PRESSED = TRAVEL / 2
 UNLIT, LIT = "grey", "white"  # a button's base lights up once it has been pressed, as RLBench's
 FINGERTIP = 0.011  # closed fingertips reach this far below the grasp point
