@@ -29,7 +29,7 @@ from rdd.atomic import write_text_atomic
 def main(argv: list[str] | None = None) -> int:
     """CLI entry point."""
     from envs.expert import run_expert
-    from experiments.pipeline import image_dependent
+    from experiments.result_blocks import image_dependent
     from planner.config import PlannerConfig
     from planner.dataset import examples_from_episode
     from planner.planner import Planner

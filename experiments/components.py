@@ -1,7 +1,8 @@
 """The harness's calls into the other packages (envs, policy, planner, rdd), in one place.
 
 Each function here is the single point where a stage meets a package's public API, so the
-pipeline (``pipeline.py``) reads as data flow and a package's API change is fixed here only.
+stages (``graph.py``, ``planner_stages.py``, ``modes.py``) read as data flow and a package's API
+change is fixed here only.
 """
 
 from __future__ import annotations

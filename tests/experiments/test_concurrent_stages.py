@@ -52,7 +52,7 @@ def test_get_or_build_without_waiting_leaves_a_busy_entry_to_its_builder(tmp_pat
 
 def test_labelled_set_makes_the_free_tasks_demos_while_another_job_makes_one(tmp_path: Path):
     pytest.importorskip("pybullet")
-    from experiments.pipeline import Run
+    from experiments.graph import Run
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="config",
@@ -77,7 +77,7 @@ def test_labelled_set_makes_the_free_tasks_demos_while_another_job_makes_one(tmp
 
 
 def test_each_free_first_takes_free_items_then_waits_for_busy_ones():
-    from experiments.pipeline import each_free_first
+    from experiments.graph import each_free_first
 
     calls = []
 
@@ -95,7 +95,7 @@ def test_each_free_first_takes_free_items_then_waits_for_busy_ones():
 
 def test_database_parts_are_built_per_task_while_another_job_holds_one(tmp_path: Path):
     pytest.importorskip("pybullet")
-    from experiments.pipeline import Run
+    from experiments.graph import Run
     from rdd.database import SubtaskDatabase
 
     busy, free = "open_drawer", "turn_tap"

@@ -60,14 +60,14 @@ def test_ray_options_leave_nulls_to_ray():
 def test_threads_follow_the_launchers_allotment(monkeypatch, n_jobs, env, cpus, expected):
     import os
 
-    from experiments.pipeline import _default_threads
+    from experiments.job import default_threads
 
     for var in ("SLURM_CPUS_PER_TASK", "OMP_NUM_THREADS"):
         monkeypatch.delenv(var, raising=False)
     for var, value in env.items():
         monkeypatch.setenv(var, value)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cpus)), raising=False)
-    assert _default_threads(n_jobs) == expected
+    assert default_threads(n_jobs) == expected
 
 
 def test_slurm_command_submits_one_array_task_per_job(tmp_path: Path):

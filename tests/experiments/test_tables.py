@@ -167,7 +167,7 @@ def test_paired_table_in_written_tables(tmp_path: Path):
 
 
 def test_image_dependent_boundaries_and_their_planner_column(tmp_path: Path):
-    from experiments.pipeline import _planner_eval_block, image_dependent
+    from experiments.result_blocks import image_dependent, planner_eval_block
 
     def row(task, goal, prev, target, base, tuned):
         return {"task": task, "episode": "e", "frame": 0, "goal": goal, "previous": prev,
@@ -181,7 +181,7 @@ def test_image_dependent_boundaries_and_their_planner_column(tmp_path: Path):
             row("stack", "stack 3 red", "lift", "above the plate", False, True),
             row("push", "push red", None, "move above red", True, True)]
     assert image_dependent(rows) == [True, True, False, False, False]
-    block = _planner_eval_block(rows, ["stack", "push"], finetuned=True)
+    block = planner_eval_block(rows, ["stack", "push"], finetuned=True)
     assert block["image_dependent_boundaries"] == 2
     assert block["finetuned_image_dependent"] == 0.5 and block["base_image_dependent"] == 0.0
     dep = block["per_task"]["stack"]["image_dependent"]

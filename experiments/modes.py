@@ -1,0 +1,131 @@
+"""What a run does once its config is checked: decompose only, the closed loop, or score the planner."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments import components as comp
+from experiments import planner_stages
+from experiments.graph import Run, finetunes
+from experiments.instantiate import instantiate_component
+from experiments.result_blocks import decomposition_block, planner_eval_block
+from experiments.results import average_success, per_task_success
+from experiments.stages import read_json, write_json_atomic
+from experiments.validate import target_callable
+
+
+def decompose_only(run: Run, results: dict[str, Any]) -> None:
+    """Decompose the validation demos and score them against the expert (mode=decompose)."""
+    if not finetunes(run.cfg):
+        raise ValueError("mode=decompose needs a decomposer (decomposer=none decomposes nothing)")
+    rows, _ = planner_stages.decompositions(run, run.eval_tasks)
+    results["tasks"] = run.eval_tasks
+    results["decomposition"] = decomposition_block(rows)
+
+
+def hierarchical(run: Run, results: dict[str, Any]) -> None:
+    """The closed loop: planner -> instruction -> policy -> keyframe, per task and env seed."""
+    from experiments.evaluation import evaluate
+
+    # While another job of the sweep trains the policy, this one builds its planner meanwhile.
+    policy = run.policy_stage(wait=False)
+    seeds = [comp.test_seed(i) for i in run.evaluation_seeds(int(run.cfg.eval.episodes_per_task))]
+    if run.planner_learned():
+        base_dir, adapter_dir, planner_key, info = planner_stages.planner_stage(run)
+        if "decompositions" in info:
+            results["decomposition"] = decomposition_block(info["decompositions"])
+        view = comp.planner_view(run.cfg.planner)
+
+        def make_planner() -> Any:
+            return comp.load_planner(run.cfg.planner, base_dir, adapter_dir)
+    else:
+        plans, planner_key, plan_rows = planner_stages.oracle_plans(run, seeds)
+        results["oracle"] = {"expert_success": {
+            t: float(np.mean([r["expert_success"] for r in plan_rows if r["task"] == t]))
+            for t in run.eval_tasks}}
+        planner_cls = target_callable(run.cfg.planner, "planner")
+        view = str(getattr(planner_cls, "view", "front"))
+
+        def make_planner() -> Any:
+            return instantiate_component(run.cfg.planner, "planner", plans=plans)
+    policy_dir, policy_key = policy or run.policy_stage()
+    loaded: dict[str, Any] = {}
+
+    def models() -> tuple[Any, Any]:
+        # Loaded on the first uncached task only: a finished config reruns without loading them.
+        if not loaded:
+            loaded["policy"] = comp.load_policy(run.cfg.policy, policy_dir, run.text_cache())
+            loaded["planner"] = make_planner()
+        return loaded["planner"], loaded["policy"]
+
+    episodes: list[dict[str, Any]] = []
+    for task in run.eval_tasks:
+        spec = {"planner": planner_key, "policy": policy_key, "env": run.node("env"), "task": task,
+                "seeds": seeds, "max_steps": int(run.cfg.eval.max_steps)}
+
+        def build(tmp: Path, task=task) -> None:
+            planner, policy = models()
+            rows = evaluate(run.cfg.env, task, seeds, planner, policy, int(run.cfg.eval.max_steps),
+                            view=view)
+            write_json_atomic(tmp / "episodes.json", [r.to_dict() for r in rows])
+
+        path, _ = run.cache.get_or_build("evaluation", spec, build, code=comp.task_sources(task))
+        episodes += read_json(path / "episodes.json")
+    per_task = per_task_success(episodes)
+    results.update(
+        tasks=run.eval_tasks,
+        evaluation_seeds={"split": "test", "env_seeds": seeds},
+        episodes=episodes,
+        per_task=per_task,
+        average_success=average_success(per_task),
+        planner=planner_key,
+        policy=policy_key,
+    )
+
+
+def planner_eval(run: Run, results: dict[str, Any]) -> None:
+    """Exact match of the next instruction at the held-out test episodes' segment starts.
+
+    Base and finetuned planner are scored on the same examples: the expert-segmented, labelled
+    test-split episodes of each evaluation task, queried as in the closed loop (image, goal,
+    previous instruction), one stage per task.
+    """
+    if not run.planner_learned():
+        raise ValueError("mode=planner_eval scores a trained planner; planner=oracle has nothing to score")
+    base_dir, adapter_dir, planner_key, info = planner_stages.planner_stage(run)
+    if "decompositions" in info:
+        results["decomposition"] = decomposition_block(info["decompositions"])
+    n = int(run.cfg.planner_eval.episodes_per_task)
+    loaded: dict[str, Any] = {}
+
+    def planners() -> dict[str, Any]:
+        if not loaded:
+            loaded["base"] = comp.load_planner(run.cfg.planner, base_dir, None)
+            if adapter_dir is not None:
+                loaded["finetuned"] = comp.load_planner(run.cfg.planner, base_dir, adapter_dir)
+        return loaded
+
+    rows: list[dict[str, Any]] = []
+    for task in run.eval_tasks:
+        eps, test_key = run.expert_labels(task, "test", n)
+        # rows: 2 since each row carries its goal (image-dependent boundaries are found from it)
+        spec = {"planner": planner_key, "base": info["base"], "test": test_key, "rows": 2}
+
+        def build(tmp: Path, eps=eps) -> None:
+            examples = comp.planner_test_examples(run.cfg.planner, eps)
+            out = [{"task": e.task, "episode": e.episode, "frame": int(e.frame), "goal": e.goal,
+                    "previous": e.previous_instruction, "target": e.target} for e in examples]
+            for name, planner in planners().items():
+                preds, hits = planner.hits(examples)
+                for row, p, h in zip(out, preds, hits, strict=True):
+                    row[name] = p
+                    row[f"{name}_hit"] = bool(h)
+            write_json_atomic(tmp / "boundaries.json", out)
+
+        path, _ = run.cache.get_or_build("planner_eval", spec, build)
+        rows += read_json(path / "boundaries.json")
+    results.update(tasks=run.eval_tasks, planner=planner_key,
+                   planner_eval=planner_eval_block(rows, run.eval_tasks, finetuned=adapter_dir is not None))

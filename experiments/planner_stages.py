@@ -1,0 +1,131 @@
+"""The planner's stages on top of the stage graph: decompositions of the validation demos, the
+base planner, its LoRA finetune, and the oracle's plans.
+
+decomposition of the M validation demos -> planner base (pretraining tasks) -> planner finetune
+(per decomposer, encoder, M, seed).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from experiments import components as comp
+from experiments.graph import Run, each_free_first, finetunes, with_segments
+from experiments.instantiate import instantiate_component
+from experiments.logs import progress
+from experiments.stages import read_json, spec_key, write_json_atomic
+
+
+def decompositions(run: Run, tasks: list[str]) -> tuple[list[dict[str, Any]], str]:
+    """Decompose and label the M validation demos of each task; rows + key."""
+    parts = {**run.runtime_key_parts("decomposer"), **run.runtime_key_parts("labeler")}
+    found = each_free_first(tasks, lambda task, wait: _task_decompositions(run, task, parts, wait))
+    rows: list[dict[str, Any]] = []
+    keys = []
+    for task in tasks:
+        path, key = found[task]
+        keys.append(key)
+        rows += read_json(path / "decompositions.json")
+    return rows, spec_key({"parts": keys})
+
+
+def _task_decompositions(run: Run, task: str, parts: dict[str, Any], wait: bool) -> tuple[Path, str] | None:
+    """The decompositions stage of one task's validation demos (None: another job's, not waited for)."""
+    m, first = run.val_window()
+    labelled = run.expert_labels(task, "val", m, first, wait=wait)
+    if labelled is None:
+        return None
+    episodes, expert_key = labelled
+    spec = {"demos": expert_key, **parts}
+
+    def build(tmp: Path) -> None:
+        decomposer = instantiate_component(run.cfg.decomposer, "decomposer",
+                                           run.runtime(run.cfg.decomposer, "decomposer"))
+        labeler = run.labeler()
+        out = []
+        for ep in progress(episodes, desc=f"decompose {task}", unit="demo"):
+            gt = ep.segments
+            t0 = time.perf_counter()
+            dec = decomposer.decompose(ep)
+            seconds = time.perf_counter() - t0
+            segs = [tuple(int(v) for v in s) for s in dec.segments]
+            out.append({
+                "episode": ep.name, "task": ep.task, "num_frames": ep.num_frames,
+                "segments": [list(s) for s in segs],
+                "instructions": [labeler.label(ep, s) for s in segs],
+                "expert_segments": [list(s) for s in gt],
+                "miou": float(comp.miou(segs, gt)),
+                "novelty": None if dec.novelty is None else float(dec.novelty),
+                "seconds": seconds,
+            })
+        write_json_atomic(tmp / "decompositions.json", out)
+
+    return run.cache.get_or_build("decompositions", spec, build, wait=wait)
+
+
+def base_planner_dir(run: Run) -> tuple[Path, str]:
+    """The base planner pretrained on the pretraining tasks' expert demos (the w/o-finetune one)."""
+    eps, data_key = run.labelled_set(
+        run.pretrain_tasks, "train", int(run.cfg.data.pretrain_episodes_per_task))
+    # The tokenizer also covers the evaluation tasks' goals and labeller vocabulary (the paper's
+    # planner is a pretrained VLM that already knows the words); no evaluation demo is trained on,
+    # only their slot words (colours, drawers, shapes) join the finetune's slot swapping.
+    vocab_eps, vocab_key = run.labelled_set(
+        run.eval_tasks, "train", int(run.cfg.data.train_episodes_per_task))
+    corpus = sorted({s for e in eps + vocab_eps for s in e.instructions}
+                    | {e.goal for e in eps + vocab_eps})
+    spec = {"planner": comp.planner_base_spec(run.cfg.planner), "data": data_key,
+            "vocabulary": vocab_key}
+    return run.cache.get_or_build(
+        "planner_base", spec,
+        lambda tmp: comp.pretrain_planner(run.cfg.planner, eps, corpus, tmp, vocab_eps))
+
+
+def planner_stage(run: Run) -> tuple[Path, Path | None, str, dict[str, Any]]:
+    """The planner for this run: the base, or the base LoRA-finetuned on the decomposed demos.
+
+    Returns (base stage dir, finetune stage dir or None, planner key, info).
+    """
+    base_dir, base_key = base_planner_dir(run)
+    info: dict[str, Any] = {"base": base_key}
+    if not finetunes(run.cfg):
+        return base_dir, None, base_key, info
+    rows, dec_key = decompositions(run, run.eval_tasks)
+    info["decompositions"] = rows
+    episodes = {e.name: e for t in run.eval_tasks for e in run.episodes(t, "val", *run.val_window())}
+    # the validation demos as the decomposer cut them and the labeller named the pieces
+    eps = [with_segments(episodes[r["episode"]], r["segments"], r["instructions"]) for r in rows]
+    spec = {"planner": run.node("planner"), "base": base_key, "decompositions": dec_key,
+            "seed": int(run.cfg.seed)}
+    path, key = run.cache.get_or_build(
+        "planner_finetune", spec,
+        lambda tmp: comp.finetune_planner(run.cfg.planner, base_dir, eps, int(run.cfg.seed), tmp))
+    info["finetune"] = key
+    return base_dir, path, key, info
+
+
+def oracle_plans(run: Run, seeds: list[int]) -> tuple[dict[str, dict[int, list[str]]], str, list]:
+    """The expert's labelled instructions for each evaluation task and env seed (cached per task).
+
+    Returns (task -> seed -> instructions, key over all tasks, rows with the expert's success).
+    """
+    plans: dict[str, dict[int, list[str]]] = {}
+    keys, rows = [], []
+    for task in run.eval_tasks:
+        spec = {"env": run.node("env"), "labeler": run.node("train_labeler"), "task": task,
+                "seeds": seeds}
+
+        def build(tmp: Path, task=task) -> None:
+            labeler = run.train_labeler()
+            write_json_atomic(tmp / "plans.json", [
+                {"task": task, **comp.expert_plan(run.cfg.env, task, s, labeler)} for s in seeds])
+
+        path, key = run.cache.get_or_build("oracle_plans", spec, build,
+                                            code=comp.task_sources(task))
+        keys.append(key)
+        got = read_json(path / "plans.json")
+        rows += got
+        plans[task] = {int(r["seed"]): list(r["instructions"]) for r in got}
+    return plans, spec_key({"parts": keys}), rows
