@@ -30,7 +30,8 @@ from typing import Any
 import numpy as np
 
 from rdd.atomic import atomic_dir
-from rdd.data.lerobot import LANGUAGE_EVENTS, LANGUAGE_PERSISTENT, LeRobotDataset, _column, _need
+from rdd.data.lerobot_dataset import LeRobotDataset, _column, _need
+from rdd.data.lerobot_language import LANGUAGE_EVENTS, LANGUAGE_PERSISTENT
 from rdd.segments import Segment, validate_segments
 
 LANGUAGE_FEATURE = {"dtype": "language", "shape": [1], "names": None}

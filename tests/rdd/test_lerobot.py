@@ -12,7 +12,8 @@ pa = pytest.importorskip("pyarrow")
 av = pytest.importorskip("av")
 import pyarrow.parquet as pq  # noqa: E402
 
-from rdd.data.lerobot import LeRobotDataset, load_episode, load_episodes  # noqa: E402
+from rdd.data.lerobot import load_episode, load_episodes  # noqa: E402
+from rdd.data.lerobot_dataset import LeRobotDataset  # noqa: E402
 
 G1 = Path(__file__).resolve().parents[2] / "../shared/data/lerobot/unitree_g1_pick_bottle"
 KEY = "observation.images.top"
@@ -138,7 +139,8 @@ def test_real_g1_inferred_hands():
 
 
 def test_names_inference_and_options(tmp_path, caplog):
-    from rdd.data.lerobot import check_reader_options, feature_names, hand_flags, infer_layout
+    from rdd.data.lerobot import check_reader_options
+    from rdd.data.lerobot_layout import feature_names, hand_flags, infer_layout
 
     names = ["l_shoulder", "left_elbow", "left_gripper", "right_elbow", "RightHandIndex", "right_finger2", "waist"]
     assert infer_layout(names) == ([0, 1, 3, 6], {"left": [2], "right": [4, 5]})

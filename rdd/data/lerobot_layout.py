@@ -1,0 +1,71 @@
+"""Which state dims of a LeRobot dataset are arm joints and which are grippers/hands, and the
+open/closed flag of each hand.
+
+The dims are inferred from the per-dimension names ``info.json`` gives a feature (names with
+gripper, hand or finger are a hand's; one group per side).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+GRIPPER_WORDS = ("gripper", "hand", "finger")
+SIDES = ("left", "right")
+
+
+def feature_names(info: dict[str, Any], key: str) -> list[str] | None:
+    """The per-dimension names info.json gives feature ``key`` (flattened), or None."""
+    names = (info.get("features", {}).get(key) or {}).get("names")
+    if isinstance(names, dict):  # {"motors": [...]} in some datasets
+        names = [n for group in names.values() for n in (group if isinstance(group, list) else [group])]
+    if isinstance(names, list) and len(names) == 1 and isinstance(names[0], list):
+        names = names[0]
+    if isinstance(names, list) and names and all(isinstance(n, str) for n in names):
+        return names
+    return None
+
+
+def infer_layout(names: Sequence[str]) -> tuple[list[int], dict[str, list[int]]]:
+    """Arm dims and gripper/hand dims per side ("left", "right" or "") from per-dim names."""
+    arm: list[int] = []
+    hands: dict[str, list[int]] = {}
+    for i, name in enumerate(names):
+        low = name.lower()
+        if any(w in low for w in GRIPPER_WORDS):
+            side = next((s for s in SIDES if s in low), "")
+            hands.setdefault(side, []).append(i)
+        else:
+            arm.append(i)
+    return arm, hands
+
+
+def hand_flags(
+    values: np.ndarray, groups: Sequence[Sequence[int]], threshold: float, hysteresis: float, open_above: bool,
+    where: str,
+) -> np.ndarray:
+    """(T, H) open flags, one per hand: the mean of its dims against ``threshold`` with hysteresis.
+
+    A hand switches state only when its mean passes ``threshold +- hysteresis``, so a resting hand
+    whose level hovers near the threshold does not flicker between open and closed.
+    """
+    v = values if values.ndim == 2 else values[:, None]
+    flags = np.zeros((v.shape[0], len(groups)))
+    for h, group in enumerate(groups):
+        bad = [i for i in group if not -v.shape[1] <= i < v.shape[1]]
+        if bad:
+            raise ValueError(f"reader option gripper_indices {bad} out of range for {where} with {v.shape[1]} dims")
+        level = v[:, list(group)].mean(axis=1)
+        if not open_above:
+            level = -level
+        thr = threshold if open_above else -threshold
+        state = bool(level[0] > thr) if len(level) else True
+        for t, x in enumerate(level):
+            if state and x < thr - hysteresis:
+                state = False
+            elif not state and x > thr + hysteresis:
+                state = True
+            flags[t, h] = float(state)
+    return flags
