@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from experiments.results import RESULTS_FORMAT, per_task_success
-from experiments.tables import average_ranks, main, write_tables
+from experiments.table_builders import average_ranks
+from experiments.tables import main, write_tables
 
 
 def _write_run(root: Path, name: str, method: str, seed: int, success: dict[str, list[bool]],
