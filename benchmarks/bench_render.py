@@ -19,7 +19,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 def main(argv=None) -> int:
     """Time the rendering of one demo."""
     from envs.expert import build_task, run_expert
-    from envs.scene import ARM_JOINTS, CameraSpec
+    from envs.panda import ARM_JOINTS
+    from envs.scene import CameraSpec
 
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--task", default="stack_blocks")

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from envs.scene import HOME_Q, PHYSICS_HZ, SIDE_SEEDS, Scene
+from envs.panda import HOME_Q, SIDE_SEEDS
+from envs.scene import PHYSICS_HZ, Scene
 
 STOP_VELOCITY = 0.1  # rad/s: the keyframe rule's stopping_delta
 FAILURES = ("unreachable", "collision", "timeout")

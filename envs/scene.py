@@ -1,81 +1,40 @@
-"""The shared pybullet scene: table, Franka Panda, cameras, primitive builders and grasping.
+"""The shared pybullet scene: table, Franka Panda, cameras, inverse kinematics and grasping.
 
 One ``Scene`` owns one DIRECT-mode physics client, so several scenes (or worker processes) never
-share state and a scene rebuilt from the same seed replays identically.
+share state and a scene rebuilt from the same seed replays identically. Its body builders are
+:class:`envs.primitives.PrimitiveBuilders`; the robot's constants are :mod:`envs.panda`'s.
 """
 
 from __future__ import annotations
 
-import hashlib
-import tempfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
+from envs.bullet import bullet_client, pb, pybullet_data
+from envs.panda import (
+    ARM_FORCES,
+    ARM_JOINTS,
+    EE_LINK,
+    FINGER_JOINTS,
+    FINGER_OPEN,
+    HAND_LINK,
+    HOME_Q,
+    JOINT_LOWER,
+    JOINT_UPPER,
+    SIDE_SEEDS,
+    _lite_panda_urdf,
+)
+from envs.poses import gripper_quat
+from envs.primitives import PrimitiveBuilders
 from envs.quiet import native_output_silenced
-from rdd.atomic import write_text_atomic
 
-try:
-    with native_output_silenced():  # pybullet prints its build-time banner on import
-        import pybullet as pb
-        import pybullet_data
-        from pybullet_utils import bullet_client
-except ImportError as exc:  # pragma: no cover - depends on the install
-    raise ImportError(
-        "the envs package needs pybullet: pip install 'rdd-harness[sim]'"
-    ) from exc
-
-ARM_JOINTS = tuple(range(7))
-FINGER_JOINTS = (9, 10)
-HAND_LINK = 8
-EE_LINK = 11  # panda_grasptarget: the point between the fingertips
-HOME_Q = (0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785)
-# Postures with the hand horizontal, pointing away from the robot (IK seeds for side grasps).
-SIDE_SEEDS = ((0.0, 0.3, 0.0, -2.0, 0.0, 2.3, -0.785), (0.0, 0.3, 0.0, -2.0, 0.0, 2.3, 2.35))
-JOINT_LOWER = np.array([-2.9671, -1.8326, -2.9671, -3.1416, -2.9671, -0.0873, -2.9671])
-JOINT_UPPER = np.array([2.9671, 1.8326, 2.9671, 0.0, 2.9671, 3.8223, 2.9671])
-ARM_FORCES = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 PHYSICS_HZ = 240
-FINGER_OPEN = 0.04
 TABLE_TOP = 0.0
 # The fixed front camera looks down at the workspace from the far side of the table.
 FRONT_EYE = (0.95, 0.0, 0.75)
 FRONT_TARGET = (0.45, 0.0, 0.05)
 ROBOT_BASE = (-0.05, 0.0, TABLE_TOP)
-
-COLORS: dict[str, tuple[float, float, float, float]] = {
-    "red": (0.85, 0.1, 0.1, 1.0),
-    "green": (0.1, 0.7, 0.15, 1.0),
-    "blue": (0.1, 0.25, 0.9, 1.0),
-    "yellow": (0.95, 0.85, 0.1, 1.0),
-    "purple": (0.55, 0.15, 0.7, 1.0),
-    "orange": (1.0, 0.5, 0.0, 1.0),
-    "cyan": (0.1, 0.8, 0.85, 1.0),
-    "white": (0.95, 0.95, 0.95, 1.0),
-    "black": (0.1, 0.1, 0.1, 1.0),
-    "grey": (0.5, 0.5, 0.5, 1.0),
-    "brown": (0.45, 0.25, 0.1, 1.0),
-    "wood": (0.6, 0.45, 0.3, 1.0),
-    "pink": (0.95, 0.6, 0.65, 1.0),
-}
-
-
-def _lite_panda_urdf() -> str:
-    """Path of panda.urdf with its collision meshes also used as visuals.
-
-    The stock visual meshes are ~1 MB each and make TinyRenderer ~15x slower; the collision
-    meshes keep the silhouette. Kinematics and dynamics are the stock file's, untouched.
-    """
-    data = Path(pybullet_data.getDataPath()) / "franka_panda"
-    text = (data / "panda.urdf").read_text()
-    text = text.replace("package://meshes/visual/", "package://meshes/collision/")
-    text = text.replace("package://meshes/", f"{data / 'meshes'}/")
-    key = hashlib.sha256(text.encode()).hexdigest()[:16]
-    out = Path(tempfile.gettempdir()) / f"rdd_envs_panda_{key}.urdf"
-    if not out.is_file():
-        write_text_atomic(out, text)
-    return str(out)
 
 
 @dataclass
@@ -89,43 +48,7 @@ class CameraSpec:
     far: float = 4.0
 
 
-def quat_from_matrix(m: np.ndarray) -> np.ndarray:
-    """xyzw quaternion of a 3x3 rotation matrix."""
-    m = np.asarray(m, dtype=np.float64)
-    tr = np.trace(m)
-    if tr > 0:
-        s = np.sqrt(tr + 1.0) * 2
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
-        q = [0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
-        q = [(m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
-    else:
-        s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
-        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s]
-    q = np.asarray(q)
-    return q / np.linalg.norm(q)
-
-
-def gripper_quat(approach: np.ndarray, fingers: np.ndarray) -> np.ndarray:
-    """Hand orientation whose approach (local z) and finger-opening (local y) axes are given."""
-    z = np.asarray(approach, dtype=np.float64)
-    z = z / np.linalg.norm(z)
-    y = np.asarray(fingers, dtype=np.float64)
-    y = y - z * (y @ z)
-    y = y / np.linalg.norm(y)
-    x = np.cross(y, z)
-    return quat_from_matrix(np.stack([x, y, z], axis=1))
-
-
-def top_down_quat(yaw: float = 0.0) -> np.ndarray:
-    """Gripper pointing down, fingers opening along (cos yaw, sin yaw, 0)."""
-    return gripper_quat(np.array([0.0, 0.0, -1.0]), np.array([np.cos(yaw), np.sin(yaw), 0.0]))
-
-
-class Scene:
+class Scene(PrimitiveBuilders):
     """A DIRECT pybullet world with a table and a Panda; tasks add their objects to it."""
 
     def __init__(self, camera: CameraSpec | None = None, render: bool = True):
@@ -185,115 +108,6 @@ class Scene:
                 client.disconnect()
             except pb.error:
                 pass
-
-    # ------------------------------------------------------------- primitives
-    def _rgba(self, color) -> tuple[float, float, float, float]:
-        if isinstance(color, str):
-            if color not in COLORS:
-                raise ValueError(f"unknown colour {color!r}; known: {sorted(COLORS)}")
-            return COLORS[color]
-        return tuple(color)
-
-    def recolor(self, body: int, link: int, color) -> None:
-        """Repaint every visual shape of one link (``-1`` = the base), e.g. a lamp lighting up."""
-        self.p.changeVisualShape(body, link, rgbaColor=self._rgba(color))
-
-    def add_box(self, half_extents, position, quaternion=(0, 0, 0, 1), color="grey", mass=0.1,
-                friction=1.0) -> int:
-        """A box body; mass 0 makes it static."""
-        p = self.p
-        col = p.createCollisionShape(pb.GEOM_BOX, halfExtents=half_extents)
-        vis = p.createVisualShape(pb.GEOM_BOX, halfExtents=half_extents, rgbaColor=self._rgba(color))
-        body = p.createMultiBody(mass, col, vis, basePosition=position, baseOrientation=quaternion)
-        p.changeDynamics(body, -1, lateralFriction=friction)
-        return body
-
-    def add_cylinder(self, radius, height, position, quaternion=(0, 0, 0, 1), color="grey", mass=0.1,
-                     friction=1.0) -> int:
-        """An upright cylinder body; mass 0 makes it static."""
-        p = self.p
-        col = p.createCollisionShape(pb.GEOM_CYLINDER, radius=radius, height=height)
-        vis = p.createVisualShape(pb.GEOM_CYLINDER, radius=radius, length=height,
-                                  rgbaColor=self._rgba(color))
-        body = p.createMultiBody(mass, col, vis, basePosition=position, baseOrientation=quaternion)
-        p.changeDynamics(body, -1, lateralFriction=friction)
-        return body
-
-    def compound_shapes(self, parts):
-        """Collision and visual shape ids of a compound made of ``parts``.
-
-        Each part is ``(kind, size, offset, color)`` with kind ``"box"`` (size = half extents)
-        or ``"cylinder"`` (size = (radius, height)) or ``"sphere"`` (size = (radius,)).
-        """
-        p = self.p
-        kinds, radii, halfs, lengths, offsets, colors = [], [], [], [], [], []
-        for kind, size, offset, _color in parts:
-            offsets.append(list(offset))
-            if kind == "box":
-                kinds.append(pb.GEOM_BOX)
-                halfs.append(list(size))
-                radii.append(0.0)
-                lengths.append(0.0)
-            elif kind == "cylinder":
-                kinds.append(pb.GEOM_CYLINDER)
-                halfs.append([0.0, 0.0, 0.0])
-                radii.append(float(size[0]))
-                lengths.append(float(size[1]))
-            elif kind == "sphere":
-                kinds.append(pb.GEOM_SPHERE)
-                halfs.append([0.0, 0.0, 0.0])
-                radii.append(float(size[0]))
-                lengths.append(0.0)
-            else:
-                raise ValueError(f"unknown compound part kind {kind!r}")
-        col = p.createCollisionShapeArray(kinds, radii=radii, halfExtents=halfs, lengths=lengths,
-                                          collisionFramePositions=offsets)
-        colors = [list(self._rgba(c)) for *_x, c in parts]
-        vis = p.createVisualShapeArray(kinds, radii=radii, halfExtents=halfs, lengths=lengths,
-                                       rgbaColors=colors, visualFramePositions=offsets)
-        return col, vis
-
-    def add_compound(self, parts, position, quaternion=(0, 0, 0, 1), mass=0.0, friction=1.0) -> int:
-        """A rigid body made of several primitives (see ``compound_shapes``)."""
-        col, vis = self.compound_shapes(parts)
-        body = self.p.createMultiBody(mass, col, vis, basePosition=position, baseOrientation=quaternion)
-        self.p.changeDynamics(body, -1, lateralFriction=friction)
-        return body
-
-    def add_articulated(self, base_parts, position, links, quaternion=(0, 0, 0, 1)) -> int:
-        """A static compound base with movable links.
-
-        ``links`` holds dicts with ``parts`` (see ``compound_shapes``), ``parent`` (0 = base,
-        i = i-th link, 1-based as pybullet wants), ``offset`` (link frame in the parent frame),
-        ``joint`` (``"prismatic"``, ``"revolute"`` or ``"fixed"``), ``axis``, ``mass``,
-        and optional ``limits`` (lower, upper).
-        """
-        p = self.p
-        base_col, base_vis = self.compound_shapes(base_parts)
-        kinds = {"prismatic": pb.JOINT_PRISMATIC, "revolute": pb.JOINT_REVOLUTE, "fixed": pb.JOINT_FIXED}
-        cols, viss = [], []
-        for link in links:
-            c, v = self.compound_shapes(link["parts"])
-            cols.append(c)
-            viss.append(v)
-        body = p.createMultiBody(
-            0.0, base_col, base_vis, basePosition=position, baseOrientation=quaternion,
-            linkMasses=[float(link.get("mass", 0.2)) for link in links],
-            linkCollisionShapeIndices=cols, linkVisualShapeIndices=viss,
-            linkPositions=[list(link["offset"]) for link in links],
-            linkOrientations=[[0, 0, 0, 1]] * len(links),
-            linkInertialFramePositions=[[0, 0, 0]] * len(links),
-            linkInertialFrameOrientations=[[0, 0, 0, 1]] * len(links),
-            linkParentIndices=[int(link["parent"]) for link in links],
-            linkJointTypes=[kinds[link["joint"]] for link in links],
-            linkJointAxis=[list(link.get("axis", (0, 0, 1))) for link in links],
-        )
-        for j, link in enumerate(links):
-            if "limits" in link:
-                lo, hi = link["limits"]
-                p.changeDynamics(body, j, jointLowerLimit=lo, jointUpperLimit=hi, jointLimitForce=500)
-            p.changeDynamics(body, j, lateralFriction=1.0)
-        return body
 
     # ----------------------------------------------------------------- robot
     def arm_state(self) -> tuple[np.ndarray, np.ndarray]:

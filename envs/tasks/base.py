@@ -9,8 +9,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from envs.poses import top_down_quat
 from envs.record import ArticulationInfo, ObjectInfo
-from envs.scene import Scene, top_down_quat
+from envs.scene import Scene
 
 HOME_FINGER_YAW = -np.pi / 4  # middle of the finger yaws joint 7 can reach with the hand down
 

@@ -6,7 +6,8 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from envs.scene import TABLE_TOP, Scene, top_down_quat
+from envs.poses import top_down_quat
+from envs.scene import TABLE_TOP, Scene
 from envs.tasks.base import Task, Waypoint, grasp_yaw, sample_positions
 
 COLORS = ("red", "green", "blue", "yellow", "purple", "cyan")

@@ -6,7 +6,8 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from envs.scene import Scene, top_down_quat
+from envs.poses import top_down_quat
+from envs.scene import Scene
 from envs.tasks.base import HOME_FINGER_YAW, Task, Waypoint, yaw_of
 from envs.tasks.cabinet import (
     CAB_X,

@@ -6,7 +6,8 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from envs.scene import TABLE_TOP, Scene, top_down_quat
+from envs.poses import top_down_quat
+from envs.scene import TABLE_TOP, Scene
 from envs.tasks.base import HOME_FINGER_YAW, Task, Waypoint
 
 BODY_TOP = 0.09

@@ -87,7 +87,7 @@ def test_at_least_half_the_tasks_have_four_sub_tasks(demo):
 def test_a_pressed_button_lights_up_and_stays_lit():
     """Buttons spring back; the lamp on the base (RLBench's top plate) is what shows they were pressed."""
     from envs.expert import build_task
-    from envs.scene import COLORS
+    from envs.primitives import COLORS
     from envs.tasks.push_buttons import LIT, TRAVEL, UNLIT
 
     scene, task = build_task("push_buttons", 20000, render=False)

@@ -55,7 +55,7 @@ def test_every_anchor_sees_how_the_held_object_sits_in_the_hand():
 
 
 def test_hand_heading_is_defined_for_a_sideways_grasp():
-    from envs.scene import gripper_quat, top_down_quat
+    from envs.poses import gripper_quat, top_down_quat
     from policy.features import hand_yaw, yaw_of
 
     for psi in np.linspace(-3.0, 3.0, 7):  # pointing down: the body x axis's heading, as before
