@@ -1,12 +1,6 @@
 """The sub-task vector database: begin/end frame vectors of expert-labelled training sub-tasks.
 
-On disk a database is a directory with ``begin.npy``, ``end.npy``, ``durations.npy``,
-``entries.json`` (episode, task, instruction, start, end per entry), optionally ``frames.npz``
-(every frame vector of the episodes kept for calibration) and ``manifest.json`` (format version,
-encoder name and weights hash, views, ``normalize_views``, dimensions, entry count, sha256
-checksums, the calibration's chosen options and scores). The directory is written whole through
-``rdd.atomic.atomic_dir``: it appears complete or not at all, and an existing one is replaced only
-with ``overwrite=True``.
+Saved as a directory written whole (its layout: :mod:`rdd.database_store`).
 """
 
 from __future__ import annotations
@@ -19,27 +13,22 @@ from typing import Any
 
 import numpy as np
 
-from rdd.atomic import atomic_dir, write_json_atomic
+from rdd.atomic import atomic_dir
 from rdd.data.episode import Episode
-from rdd.data.frames import update_with_file
+from rdd.database_build import segment_entries
+from rdd.database_store import (
+    PER_ENTRY,
+    DatabaseError,
+    read_files,
+    read_frames,
+    record_calibration,
+    write_files,
+)
 from rdd.encoders.base import Encoder
-from rdd.encoders.embed import DEFAULT_VIEWS, episode_frame_vectors
-from rdd.segments import Segment, validate_segments
+from rdd.encoders.embed import DEFAULT_VIEWS
+from rdd.segments import Segment
 
-FORMAT_VERSION = 1
-MANIFEST = "manifest.json"
-_ARRAYS = ("begin.npy", "end.npy", "durations.npy")
-_ENTRIES = "entries.json"
-_FRAMES = "frames.npz"
-_PER_ENTRY = ("episodes", "tasks", "starts", "ends")
-
-
-class DatabaseError(ValueError):
-    """A database directory that cannot be used (missing, corrupt or mismatched)."""
-
-
-def _sha256(path: Path) -> str:
-    return update_with_file(hashlib.sha256(), path).hexdigest()
+__all__ = ["DatabaseError", "SubtaskDatabase"]
 
 
 class SubtaskDatabase:
@@ -109,7 +98,7 @@ class SubtaskDatabase:
             raise ValueError(f"labels has {len(labels)} items, expected one per entry ({n})")
         meta = dict(meta or {})
         per_entry: dict[str, list] = {}
-        for key in _PER_ENTRY:
+        for key in PER_ENTRY:
             values = meta.pop(key, None)
             if values is None:
                 values = [""] * n if key in ("episodes", "tasks") else [-1] * n
@@ -152,62 +141,8 @@ class SubtaskDatabase:
         (e.g. an RLBench variation description or a LeRobot task string) for every segment.
         ``normalize_views=False`` concatenates raw per-view embeddings (the official code's layout).
         """
-        if segmentations is not None and len(segmentations) != len(episodes):
-            raise ValueError(
-                f"{len(segmentations)} segmentations given for {len(episodes)} episodes"
-            )
-        if instructions is not None and len(instructions) != len(episodes):
-            raise ValueError(f"{len(instructions)} instruction lists given for {len(episodes)} episodes")
-        names = [ep.name for ep in episodes]
-        unknown = sorted(set(keep_frames) - set(names))
-        if unknown:
-            raise ValueError(f"keep_frames names episodes that are not being built: {unknown}")
-        if len(set(names)) != len(names) and keep_frames:
-            raise ValueError("episode names must be unique to keep frames for calibration")
-        begin, end, durations, labels = [], [], [], []
-        meta_lists: dict[str, list] = {k: [] for k in _PER_ENTRY}
-        frames: dict[str, np.ndarray] = {}
-        for i, ep in enumerate(episodes):
-            segs = segmentations[i] if segmentations is not None else ep.segments
-            if segs is None:
-                raise ValueError(f"episode {ep.name!r} has no segmentation (pass segmentations=)")
-            try:
-                segs = validate_segments(segs, ep.num_frames)
-            except ValueError as exc:
-                raise ValueError(f"episode {ep.name!r}: {exc}") from exc
-            if instructions is not None:
-                instr = list(instructions[i])
-            elif ep.instructions is not None and (
-                ep.segments is None or [tuple(int(v) for v in s) for s in ep.segments] == segs
-            ):
-                # the episode's instructions describe this segmentation (its own, or it has none)
-                instr = list(ep.instructions)
-            else:
-                instr = [ep.goal or ""] * len(segs)
-            if len(instr) != len(segs):
-                raise ValueError(
-                    f"episode {ep.name!r}: {len(instr)} instructions for {len(segs)} segments"
-                )
-            if ep.name in keep_frames:
-                fv = episode_frame_vectors(ep, encoder, views=views, cache=cache, normalize=normalize_views)
-                frames[ep.name] = fv
-                rows = {f: f for f in range(ep.num_frames)}
-            else:
-                needed = sorted({f for s, e in segs for f in (s, e - 1)})
-                fv = episode_frame_vectors(ep, encoder, views=views, cache=cache,
-                                           normalize=normalize_views, frames=needed)
-                rows = {f: r for r, f in enumerate(needed)}
-            for (s, e), text in zip(segs, instr, strict=True):
-                begin.append(fv[rows[s]])
-                end.append(fv[rows[e - 1]])
-                durations.append(e - 1 - s)
-                labels.append(text)
-                meta_lists["episodes"].append(ep.name)
-                meta_lists["tasks"].append(ep.task)
-                meta_lists["starts"].append(s)
-                meta_lists["ends"].append(e)
-        if not begin:
-            raise ValueError("no segments to build a database from (no episodes given)")
+        begin, end, durations, labels, meta_lists, frames = segment_entries(
+            episodes, segmentations, encoder, views, cache, instructions, normalize_views, keep_frames)
         meta = {
             "encoder": encoder.name,
             "weights_id": encoder.weights_id,
@@ -242,7 +177,7 @@ class SubtaskDatabase:
                 raise ValueError(f"concat: frames of episode(s) {clash} are kept by two parts")
             frames.update(db.frames)
         meta = {k: v for k, v in first.meta.items() if k != "calibration"}
-        for key in _PER_ENTRY:
+        for key in PER_ENTRY:
             meta[key] = [v for db in parts for v in getattr(db, key)]
         out = cls.from_arrays(np.concatenate([db.begin for db in parts]),
                               np.concatenate([db.end for db in parts]),
@@ -322,23 +257,6 @@ class SubtaskDatabase:
         return segs
 
     # ----------------------------------------------------------------- persistence
-    def _manifest(self, out: Path) -> dict[str, Any]:
-        files = [*_ARRAYS, _ENTRIES] + ([_FRAMES] if self.frames else [])
-        return {
-            "format_version": FORMAT_VERSION,
-            "encoder": self.meta.get("encoder"),
-            "weights_id": self.meta.get("weights_id"),
-            "views": self.meta.get("views"),
-            "normalize_views": bool(self.meta.get("normalize_views", True)),
-            "frame_dim": self.frame_dim,
-            "count": len(self),
-            "frames_episodes": sorted(self.frames),
-            "calibration": self.meta.get("calibration"),
-            "extra": {k: v for k, v in self.meta.items()
-                      if k not in ("encoder", "weights_id", "views", "normalize_views", "calibration")},
-            "checksums": {name: _sha256(out / name) for name in files},
-        }
-
     def save(self, directory: str | Path, overwrite: bool = False) -> Path:
         """Write the database to ``directory`` in one piece; return the directory.
 
@@ -347,17 +265,7 @@ class SubtaskDatabase:
         """
         out = Path(directory)
         with atomic_dir(out, overwrite=overwrite) as tmp:
-            for name, arr in zip(_ARRAYS, (self.begin, self.end, self.durations), strict=True):
-                np.save(tmp / name, arr, allow_pickle=False)
-            entries = {
-                "labels": self.labels, "episodes": self.episodes, "tasks": self.tasks,
-                "starts": self.starts, "ends": self.ends,
-            }
-            (tmp / _ENTRIES).write_text(json.dumps(entries))
-            if self.frames:
-                names = sorted(self.frames)
-                np.savez(tmp / _FRAMES, **{f"f{i}": self.frames[n] for i, n in enumerate(names)})
-            (tmp / MANIFEST).write_text(json.dumps(self._manifest(tmp), indent=2))
+            write_files(self, tmp)
         self.directory = out
         return out
 
@@ -365,10 +273,7 @@ class SubtaskDatabase:
         """Record ``calibration`` in the saved database's manifest (one atomic rewrite of it)."""
         if self.directory is None:
             raise DatabaseError("save_calibration needs a saved database (call save() or load() first)")
-        mpath = self.directory / MANIFEST
-        manifest = json.loads(mpath.read_text())
-        manifest["calibration"] = calibration
-        write_json_atomic(mpath, manifest, dumps=lambda m: json.dumps(m, indent=2))
+        mpath = record_calibration(self.directory, calibration)
         self.meta["calibration"] = calibration
         return mpath
 
@@ -381,59 +286,19 @@ class SubtaskDatabase:
     ) -> SubtaskDatabase:
         """Read a saved database, verifying checksums, dimensions and (when given) encoder and views."""
         root = Path(directory)
-        if not root.is_dir():
-            raise DatabaseError(f"database directory {root} does not exist")
-        mpath = root / MANIFEST
-        if not mpath.is_file():
-            raise DatabaseError(f"{mpath} is missing (not a saved database, or an interrupted save)")
-        try:
-            manifest = json.loads(mpath.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise DatabaseError(f"{mpath} is not valid JSON: {exc}") from exc
-        if manifest.get("format_version") != FORMAT_VERSION:
-            raise DatabaseError(
-                f"{mpath}: format_version {manifest.get('format_version')!r}, this code reads {FORMAT_VERSION}"
-            )
-        for key in ("frame_dim", "count", "checksums", "encoder", "weights_id", "views"):
-            if key not in manifest:
-                raise DatabaseError(f"{mpath}: field {key!r} is missing")
-        frame_names = manifest.get("frames_episodes") or []
-        for name in (*_ARRAYS, _ENTRIES, *([_FRAMES] if frame_names else [])):
-            path = root / name
-            if not path.is_file():
-                raise DatabaseError(f"database file {path} is missing")
-            expected = manifest["checksums"].get(name)
-            if expected is None:
-                raise DatabaseError(f"{mpath}: no checksum recorded for {name}")
-            if _sha256(path) != expected:
-                raise DatabaseError(f"database file {path} is corrupt (sha256 does not match the manifest)")
-        begin = np.load(root / "begin.npy", allow_pickle=False)
-        end = np.load(root / "end.npy", allow_pickle=False)
-        durations = np.load(root / "durations.npy", allow_pickle=False)
-        n, d = manifest["count"], manifest["frame_dim"]
-        for name, arr in (("begin.npy", begin), ("end.npy", end)):
-            if arr.shape != (n, d):
-                raise DatabaseError(
-                    f"database file {root / name} has shape {arr.shape}, manifest says ({n}, {d})"
-                )
-        if durations.shape != (n,):
-            raise DatabaseError(f"database file {root / 'durations.npy'} has shape {durations.shape}, expected ({n},)")
-        entries = json.loads((root / _ENTRIES).read_text())
+        manifest, begin, end, durations, entries = read_files(root)
+        d = manifest["frame_dim"]
         meta = {
             "encoder": manifest["encoder"], "weights_id": manifest["weights_id"],
             "views": manifest["views"], **manifest.get("extra", {}),
             "normalize_views": bool(manifest.get("normalize_views", True)),
             "calibration": manifest.get("calibration"),
-            **{k: entries[k] for k in _PER_ENTRY},
+            **{k: entries[k] for k in PER_ENTRY},
         }
         db = cls.from_arrays(begin, end, durations, entries["labels"], meta)
+        frame_names = manifest.get("frames_episodes") or []
         if frame_names:
-            with np.load(root / _FRAMES, allow_pickle=False) as data:
-                db.frames = {n: np.asarray(data[f"f{i}"], dtype=np.float32) for i, n in enumerate(frame_names)}
-            for n, fv in db.frames.items():
-                if fv.ndim != 2 or fv.shape[1] != d:
-                    raise DatabaseError(f"{root / _FRAMES}: frames of {n!r} have shape {fv.shape}, "
-                                        f"expected (T, {d})")
+            db.frames = read_frames(root, frame_names, d)
         db.check_compatible(encoder, views, where=f"database {root}")
         if encoder is not None and encoder.dim and manifest["views"]:
             expected_dim = encoder.dim * len(manifest["views"])

@@ -1,0 +1,139 @@
+"""The on-disk form of a sub-task database (:class:`rdd.database.SubtaskDatabase`).
+
+A database is a directory with ``begin.npy``, ``end.npy``, ``durations.npy``,
+``entries.json`` (episode, task, instruction, start, end per entry), optionally ``frames.npz``
+(every frame vector of the episodes kept for calibration) and ``manifest.json`` (format version,
+encoder name and weights hash, views, ``normalize_views``, dimensions, entry count, sha256
+checksums, the calibration's chosen options and scores). The directory is written whole through
+``rdd.atomic.atomic_dir``: it appears complete or not at all, and an existing one is replaced only
+with ``overwrite=True``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from rdd.atomic import write_json_atomic
+from rdd.data.frames import update_with_file
+
+if TYPE_CHECKING:
+    from rdd.database import SubtaskDatabase
+
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+_ARRAYS = ("begin.npy", "end.npy", "durations.npy")
+_ENTRIES = "entries.json"
+_FRAMES = "frames.npz"
+# The per-entry provenance lists of entries.json besides the instructions (``labels``).
+PER_ENTRY = ("episodes", "tasks", "starts", "ends")
+
+
+class DatabaseError(ValueError):
+    """A database directory that cannot be used (missing, corrupt or mismatched)."""
+
+
+def _sha256(path: Path) -> str:
+    return update_with_file(hashlib.sha256(), path).hexdigest()
+
+
+def make_manifest(db: SubtaskDatabase, out: Path) -> dict[str, Any]:
+    """The manifest of ``db``, whose other files are already written in ``out``."""
+    files = [*_ARRAYS, _ENTRIES] + ([_FRAMES] if db.frames else [])
+    return {
+        "format_version": FORMAT_VERSION,
+        "encoder": db.meta.get("encoder"),
+        "weights_id": db.meta.get("weights_id"),
+        "views": db.meta.get("views"),
+        "normalize_views": bool(db.meta.get("normalize_views", True)),
+        "frame_dim": db.frame_dim,
+        "count": len(db),
+        "frames_episodes": sorted(db.frames),
+        "calibration": db.meta.get("calibration"),
+        "extra": {k: v for k, v in db.meta.items()
+                  if k not in ("encoder", "weights_id", "views", "normalize_views", "calibration")},
+        "checksums": {name: _sha256(out / name) for name in files},
+    }
+
+
+def write_files(db: SubtaskDatabase, tmp: Path) -> None:
+    """Write every file of ``db`` into the (temporary, empty) directory ``tmp``, the manifest last."""
+    for name, arr in zip(_ARRAYS, (db.begin, db.end, db.durations), strict=True):
+        np.save(tmp / name, arr, allow_pickle=False)
+    entries = {
+        "labels": db.labels, "episodes": db.episodes, "tasks": db.tasks,
+        "starts": db.starts, "ends": db.ends,
+    }
+    (tmp / _ENTRIES).write_text(json.dumps(entries))
+    if db.frames:
+        names = sorted(db.frames)
+        np.savez(tmp / _FRAMES, **{f"f{i}": db.frames[n] for i, n in enumerate(names)})
+    (tmp / MANIFEST).write_text(json.dumps(make_manifest(db, tmp), indent=2))
+
+
+def record_calibration(directory: Path, calibration: dict[str, Any]) -> Path:
+    """Write ``calibration`` into the manifest of the database in ``directory`` (one atomic rewrite)."""
+    mpath = directory / MANIFEST
+    manifest = json.loads(mpath.read_text())
+    manifest["calibration"] = calibration
+    write_json_atomic(mpath, manifest, dumps=lambda m: json.dumps(m, indent=2))
+    return mpath
+
+
+def read_files(root: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """Manifest, begin, end, durations and entries of the database in ``root``, checksums and shapes
+    verified (DatabaseError otherwise)."""
+    if not root.is_dir():
+        raise DatabaseError(f"database directory {root} does not exist")
+    mpath = root / MANIFEST
+    if not mpath.is_file():
+        raise DatabaseError(f"{mpath} is missing (not a saved database, or an interrupted save)")
+    try:
+        manifest = json.loads(mpath.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DatabaseError(f"{mpath} is not valid JSON: {exc}") from exc
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise DatabaseError(
+            f"{mpath}: format_version {manifest.get('format_version')!r}, this code reads {FORMAT_VERSION}"
+        )
+    for key in ("frame_dim", "count", "checksums", "encoder", "weights_id", "views"):
+        if key not in manifest:
+            raise DatabaseError(f"{mpath}: field {key!r} is missing")
+    frame_names = manifest.get("frames_episodes") or []
+    for name in (*_ARRAYS, _ENTRIES, *([_FRAMES] if frame_names else [])):
+        path = root / name
+        if not path.is_file():
+            raise DatabaseError(f"database file {path} is missing")
+        expected = manifest["checksums"].get(name)
+        if expected is None:
+            raise DatabaseError(f"{mpath}: no checksum recorded for {name}")
+        if _sha256(path) != expected:
+            raise DatabaseError(f"database file {path} is corrupt (sha256 does not match the manifest)")
+    begin = np.load(root / "begin.npy", allow_pickle=False)
+    end = np.load(root / "end.npy", allow_pickle=False)
+    durations = np.load(root / "durations.npy", allow_pickle=False)
+    n, d = manifest["count"], manifest["frame_dim"]
+    for name, arr in (("begin.npy", begin), ("end.npy", end)):
+        if arr.shape != (n, d):
+            raise DatabaseError(
+                f"database file {root / name} has shape {arr.shape}, manifest says ({n}, {d})"
+            )
+    if durations.shape != (n,):
+        raise DatabaseError(f"database file {root / 'durations.npy'} has shape {durations.shape}, expected ({n},)")
+    entries = json.loads((root / _ENTRIES).read_text())
+    return manifest, begin, end, durations, entries
+
+
+def read_frames(root: Path, frame_names: list[str], d: int) -> dict[str, np.ndarray]:
+    """The kept frame vectors (name -> (T, d)) of the database in ``root``."""
+    with np.load(root / _FRAMES, allow_pickle=False) as data:
+        frames = {n: np.asarray(data[f"f{i}"], dtype=np.float32) for i, n in enumerate(frame_names)}
+    for n, fv in frames.items():
+        if fv.ndim != 2 or fv.shape[1] != d:
+            raise DatabaseError(f"{root / _FRAMES}: frames of {n!r} have shape {fv.shape}, "
+                                f"expected (T, {d})")
+    return frames
