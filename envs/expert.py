@@ -97,8 +97,9 @@ class ExpertResult:
 
 def run_expert(task_name: str, seed: int, variation: int | None = None, render: bool = True,
                camera: CameraSpec | None = None, split: str | None = None,
-               ticks_per_frame: int = 12) -> ExpertResult:
-    """Record one scripted demonstration of ``task_name`` for ``seed``."""
+               ticks_per_frame: int = 12, motion_timeout: float = 3.0) -> ExpertResult:
+    """Record one scripted demonstration of ``task_name`` for ``seed`` (``ticks_per_frame`` and
+    ``motion_timeout`` as the gym env's, so demos and evaluation run the same physics)."""
     scene, task = build_task(task_name, seed, variation, render=render, camera=camera)
     try:
         rec = FrameRecorder(scene, task, render=render)
@@ -109,7 +110,8 @@ def run_expert(task_name: str, seed: int, variation: int | None = None, render: 
         waypoints: list[dict[str, Any]] = []
         failure = None
         for wp in task.expert():
-            res = ctrl.move(wp.position, wp.quaternion, wp.gripper_open, task.graspable())
+            res = ctrl.move(wp.position, wp.quaternion, wp.gripper_open, task.graspable(),
+                            timeout=motion_timeout)
             if not res.ok:
                 failure = f"{res.failure} at waypoint {len(keyframes)} ({wp.instruction})"
                 break

@@ -43,7 +43,8 @@ def episode_dir(out: str | Path, split: str, task: str, seed: int) -> Path:
     return Path(out) / split / task / f"{task}_seed{seed:05d}"
 
 
-def generate_one(task: str, seed: int, split: str, out: str, image_size: int, render: bool) -> tuple[int, bool, str | None]:
+def generate_one(task: str, seed: int, split: str, out: str, image_size: int, render: bool,
+                 ticks_per_frame: int = 12, motion_timeout: float = 3.0) -> tuple[int, bool, str | None]:
     """Record and save one demonstration (saved only when the expert succeeds)."""
     import torch
 
@@ -53,7 +54,8 @@ def generate_one(task: str, seed: int, split: str, out: str, image_size: int, re
     from rdd.data.native import save_episode
 
     res = run_expert(task, seed, render=render, split=split,
-                     camera=CameraSpec(width=image_size, height=image_size))
+                     camera=CameraSpec(width=image_size, height=image_size),
+                     ticks_per_frame=ticks_per_frame, motion_timeout=motion_timeout)
     if res.success:
         save_episode(res.episode, episode_dir(out, split, task, seed), privileged=res.privileged)
     return seed, res.success, res.failure
@@ -88,9 +90,11 @@ def _too_many_failures(task: str, split: str, new: list[str], done: int, episode
 
 
 def generate(tasks, split: str, episodes: int, out: str | Path, workers: int = 1, image_size: int = 128,
-             render: bool = True, progress: bool = True,
-             max_failures: int | None = None) -> dict[str, list[int]]:
+             render: bool = True, progress: bool = True, max_failures: int | None = None,
+             ticks_per_frame: int = 12, motion_timeout: float = 3.0) -> dict[str, list[int]]:
     """Make ``episodes`` successful demonstrations per task; returns the seeds used per task.
+
+    ``ticks_per_frame`` and ``motion_timeout`` are the gym env's (``envs.gym_env``) of the same name.
 
     Gives up on a task (RuntimeError) once more than ``max_failures`` new seeds failed for it.
     """
@@ -141,7 +145,8 @@ def generate(tasks, split: str, episodes: int, out: str | Path, workers: int = 1
                     if len(done) < episodes:
                         raise RuntimeError(f"{task}: split {split!r} ran out of seeds with {len(done)} demos")
                     break
-                args = [(task, s, split, str(out), image_size, render) for s in batch]
+                args = [(task, s, split, str(out), image_size, render, ticks_per_frame, motion_timeout)
+                        for s in batch]
                 results = pool.map(generate_one, *zip(*args, strict=True)) if pool else (generate_one(*a) for a in args)
                 for seed, ok, failure in results:
                     if ok:
@@ -174,11 +179,15 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="parallel worker processes")
     ap.add_argument("--image-size", type=int, default=128)
     ap.add_argument("--no-render", action="store_true", help="skip images (low-dim data only)")
+    ap.add_argument("--ticks-per-frame", type=int, default=12, help="240 Hz physics ticks per frame")
+    ap.add_argument("--motion-timeout", type=float, default=3.0,
+                    help="seconds a keyframe motion may overrun before it fails")
     ap.add_argument("--max-failures", type=int, default=None,
                     help="new expert failures per task before giving up (default 2*episodes+10)")
     args = ap.parse_args(argv)
     used = generate(args.tasks or task_names(), args.split, args.episodes, args.out, args.workers,
-                    args.image_size, not args.no_render, max_failures=args.max_failures)
+                    args.image_size, not args.no_render, max_failures=args.max_failures,
+                    ticks_per_frame=args.ticks_per_frame, motion_timeout=args.motion_timeout)
     for task, seeds in used.items():
         print(f"{task}: {len(seeds)} episodes, seeds {seeds[0]}..{seeds[-1]}")
     return 0

@@ -63,17 +63,34 @@ def _env_options(env_cfg: DictConfig | None) -> dict[str, Any]:
     return {k: v for k, v in (_plain(env_cfg) or {}).items() if not str(k).startswith("_")}
 
 
+# The env options a recorded demo depends on: every one but ``max_steps``, the closed loop's action
+# budget. Each is passed to demo generation under the generator's name for it.
+DEMO_ENV_OPTIONS = {"image_size": "image_size", "render_images": "render",
+                    "ticks_per_frame": "ticks_per_frame", "motion_timeout": "motion_timeout"}
+EVAL_ONLY_ENV_OPTIONS = ("max_steps",)
+
+
+def demo_env_options(env_cfg: DictConfig | None) -> dict[str, Any]:
+    """The env config's options that shape its recorded demos (the demos' stage key hashes these)."""
+    opts = _env_options(env_cfg)
+    unknown = sorted(set(opts) - set(DEMO_ENV_OPTIONS) - set(EVAL_ONLY_ENV_OPTIONS))
+    if unknown:
+        raise ValueError(f"env: option(s) {unknown} reach neither demo generation nor evaluation; "
+                         f"known: {sorted([*DEMO_ENV_OPTIONS, *EVAL_ONLY_ENV_OPTIONS])}")
+    return {k: v for k, v in opts.items() if k in DEMO_ENV_OPTIONS}
+
+
 def episodes_for(env_cfg: DictConfig, task: str, split: str, count: int, root: Path) -> list[Path]:
     """Directories of the first ``count`` successful scripted demos of ``task`` in ``split``.
 
     ``envs.generate`` is resumable and writes each episode atomically under ``root``, so a run
     asking for 3 demos reuses the 1 an earlier run made; seeds come from the split's own range.
+    The demos are recorded with the env options the evaluation uses (``demo_env_options``).
     """
     from envs.generate import episode_dir, generate
 
-    opts = _env_options(env_cfg)
-    used = generate([task], split, int(count), root, workers=1,
-                    image_size=int(opts.get("image_size", 128)), render=True, progress=progress_enabled())
+    options = {DEMO_ENV_OPTIONS[k]: v for k, v in demo_env_options(env_cfg).items()}
+    used = generate([task], split, int(count), root, workers=1, progress=progress_enabled(), **options)
     return [episode_dir(root, split, task, seed) for seed in used[task]]
 
 
@@ -160,8 +177,9 @@ def expert_plan(env_cfg: DictConfig, task: str, seed: int, labeler) -> dict[str,
     """
     from envs.expert import run_expert
 
-    opts = _env_options(env_cfg)
-    res = run_expert(task, int(seed), render=False, ticks_per_frame=int(opts.get("ticks_per_frame", 12)))
+    opts = {DEMO_ENV_OPTIONS[k]: v for k, v in demo_env_options(env_cfg).items()
+            if k in ("ticks_per_frame", "motion_timeout")}
+    res = run_expert(task, int(seed), render=False, **opts)
     ep = res.episode
     ep.meta["privileged"] = res.privileged
     segs = expert_segments(ep)

@@ -120,8 +120,9 @@ class Run:
 
     # --- stages ----------------------------------------------------------------------------------
     def demos_key(self, task: str) -> str:
-        """Key of ``task``'s demos: the env config, the shared env code and the task's own module."""
-        return spec_key({"env": self.node("env"), "code": stage_code_key("demos", comp.task_sources(task))})
+        """Key of ``task``'s demos: the env options demos depend on, the env code and the task's module."""
+        return spec_key({"env": comp.demo_env_options(self.cfg.env),
+                         "code": stage_code_key("demos", comp.task_sources(task))})
 
     def episodes(self, task: str, split: str, count: int, first: int = 0, wait: bool = True) -> list | None:
         """Successful scripted demos ``first .. first+count-1`` of ``task`` in ``split`` (cached).

@@ -1,7 +1,7 @@
 """The ``speed`` experiment: RDD decomposition time versus demonstration length, with and without L_max.
 
-Frame vectors are a smooth random walk on the sphere (two views, each L2-normalised as DESIGN.md
-requires) and the database holds random sub-task entries of the same layout; what is measured is the
+Frame vectors are a smooth random walk on the sphere (two views, each L2-normalised as
+docs/architecture.md requires) and the database holds random sub-task entries of the same layout; what is measured is the
 whole ``decompose_embeddings`` call (batched retrieval of every candidate interval plus the solver).
 """
 

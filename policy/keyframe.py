@@ -14,7 +14,7 @@ import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import torch
@@ -32,16 +32,9 @@ from policy.training import (
 )
 from rdd.atomic import write_json_atomic
 from rdd.data.episode import Episode
+from rdd.labeler import Labeler
 
 log = logging.getLogger(__name__)
-
-
-class Labeler(Protocol):
-    """Anything that turns an interval of an episode into an instruction."""
-
-    def label(self, episode: Episode, segment: tuple[int, int]) -> str:
-        """Instruction for frames ``[start, end)``."""
-        ...
 
 
 @dataclass

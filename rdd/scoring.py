@@ -1,7 +1,7 @@
 """RDD interval scoring: interval vectors, angular distance, similarities (paper Eq. 3.4, 3.5).
 
-Conventions (DESIGN.md): an interval ``[start, end)`` has weight ``end - start`` and duration
-``end - 1 - start``; its vector is ``concat(frame[start], frame[end - 1])``; distance is angular,
+Conventions (docs/architecture.md): an interval ``[start, end)`` has weight ``end - start`` and
+duration ``end - 1 - start``; its vector is ``concat(frame[start], frame[end - 1])``; distance is angular,
 ``sqrt(2 (1 - cos))``.
 """
 
@@ -72,8 +72,8 @@ def angular_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def length_term(query_durations, neighbour_durations) -> np.ndarray:
     """``|1 - dur(I) / dur(I_nn)|``; a one-frame neighbour (duration 0) counts as duration 1.
 
-    A database entry of a single frame has duration 0 under DESIGN.md's convention; clamping it to 1
-    keeps the ratio finite instead of making every query that matches it infinitely bad.
+    A database entry of a single frame has duration 0 under the convention of
+    docs/architecture.md; clamping it to 1 keeps the ratio finite instead of making every query that matches it infinitely bad.
     """
     q = np.asarray(query_durations, dtype=np.float64)
     nn = np.maximum(np.asarray(neighbour_durations, dtype=np.float64), 1.0)

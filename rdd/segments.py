@@ -1,4 +1,4 @@
-"""Segmentation conventions shared by every part (see DESIGN.md).
+"""Segmentation conventions shared by every part (see docs/architecture.md).
 
 A segmentation of a T-frame demonstration is a list of half-open ``(start, end)`` segments that
 partition ``[0, T)``. The keyframe of a segment is ``end - 1``.

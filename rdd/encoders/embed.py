@@ -1,4 +1,4 @@
-"""Frame vectors: per-view L2-normalised embeddings concatenated over views (DESIGN.md)."""
+"""Frame vectors: per-view L2-normalised embeddings concatenated over views (docs/architecture.md)."""
 
 from __future__ import annotations
 

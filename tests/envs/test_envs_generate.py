@@ -69,7 +69,7 @@ def test_failed_seeds_are_recorded_and_replaced(tmp_path, monkeypatch):
 
     calls = []
 
-    def fake(task, seed, split, out, image_size, render):
+    def fake(task, seed, split, out, image_size, render, ticks_per_frame, motion_timeout):
         calls.append(seed)
         if seed == 1:  # the expert "fails" on seed 1: recorded, then seed 2 replaces it
             return seed, False, "timeout at waypoint 0"
@@ -94,7 +94,7 @@ def test_generate_gives_up_on_a_task_whose_expert_keeps_failing(tmp_path, monkey
 
     calls = []
 
-    def always_fails(task, seed, split, out, image_size, render):
+    def always_fails(task, seed, split, out, image_size, render, ticks_per_frame, motion_timeout):
         calls.append(seed)
         return seed, False, "lid slipped" if seed % 2 else "success detector false"
 
@@ -107,7 +107,7 @@ def test_generate_gives_up_on_a_task_whose_expert_keeps_failing(tmp_path, monkey
     assert sorted(int(s) for s in failed) == calls
 
     # a rerun skips the known failures without counting them, and goes on from the next seed
-    def fails_twice_more(task, seed, split, out, image_size, render):
+    def fails_twice_more(task, seed, split, out, image_size, render, ticks_per_frame, motion_timeout):
         calls.append(seed)
         return seed, seed >= 6, None if seed >= 6 else "slipped"
 

@@ -8,11 +8,12 @@ import pytest
 pytest.importorskip("transformers")
 pytest.importorskip("tokenizers")
 
+from synthetic_world import EVAL_TASKS, PRETRAIN_TASKS, make_episode  # noqa: E402
+
 from planner.config import PlannerConfig  # noqa: E402
 from planner.dataset import PlannerCollator, encode_example, examples_from_episode  # noqa: E402
 from planner.models import build_processor, load_model, train_tokenizer  # noqa: E402
 from planner.prompts import clean_output, render_prompt, render_target, user_prompt  # noqa: E402
-from planner.synthetic import EVAL_TASKS, PRETRAIN_TASKS, make_episode  # noqa: E402
 from rdd.data.episode import Episode  # noqa: E402
 
 CONF = Path(__file__).resolve().parents[2] / "conf" / "planner"

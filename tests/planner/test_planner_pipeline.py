@@ -9,9 +9,10 @@ import torch
 pytest.importorskip("peft")
 pytest.importorskip("accelerate")
 
+from synthetic_world import make_episodes  # noqa: E402
+
 from planner.config import PlannerConfig  # noqa: E402
 from planner.planner import Planner  # noqa: E402
-from planner.synthetic import make_episodes  # noqa: E402
 from planner.train import finetune_lora, pretrain_base, training_examples  # noqa: E402
 
 

@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
+from synthetic_world import COLOURS, EVAL_TASKS, PRETRAIN_TASKS, make_episode
 
-from planner.synthetic import COLOURS, EVAL_TASKS, PRETRAIN_TASKS, make_episode
 from rdd.segments import validate_segments
 
 OPEN_DRAWER_RGB = (180, 140, 100)

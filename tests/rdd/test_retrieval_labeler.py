@@ -1,4 +1,4 @@
-"""Retrieval labeler: the nearest database entry's instruction, with DESIGN's interval vectors."""
+"""Retrieval labeler: the nearest database entry's instruction (interval vectors: docs/architecture.md)."""
 
 from __future__ import annotations
 
