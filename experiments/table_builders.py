@@ -14,17 +14,10 @@ from experiments.table_format import Table, _pm, mean_std
 
 def average_ranks(scores: Sequence[float]) -> list[float]:
     """1-based ranks, highest score first, ties sharing the mean of their ranks."""
-    order = sorted(range(len(scores)), key=lambda i: -scores[i])
-    ranks = [0.0] * len(scores)
-    i = 0
-    while i < len(order):
-        j = i
-        while j + 1 < len(order) and scores[order[j + 1]] == scores[order[i]]:
-            j += 1
-        for k in range(i, j + 1):
-            ranks[order[k]] = (i + j) / 2 + 1
-        i = j + 1
-    return ranks
+    from scipy.stats import rankdata  # lazy: scipy.stats takes most of a second to import
+
+    # rankdata ranks the lowest first; negating makes the highest score rank 1
+    return rankdata(-np.asarray(scores, dtype=np.float64), method="average").tolist()
 
 
 def _methods_in_order(runs: Sequence[RunRecord]) -> list[str]:
