@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from torch.nn.utils.rnn import pad_sequence
 
 from planner.prompts import render_prompt, render_target
 from rdd.data.episode import Episode
@@ -123,14 +124,7 @@ class PlannerCollator:
         self.padding_side = padding_side
 
     def _pad(self, seqs: list[torch.Tensor], value: int) -> torch.Tensor:
-        n = max(len(s) for s in seqs)
-        out = torch.full((len(seqs), n), value, dtype=seqs[0].dtype)
-        for i, s in enumerate(seqs):
-            if self.padding_side == "right":
-                out[i, : len(s)] = s
-            else:
-                out[i, n - len(s):] = s
-        return out
+        return pad_sequence(seqs, batch_first=True, padding_value=value, padding_side=self.padding_side)
 
     def __call__(self, items: list[dict]) -> dict:
         """Batch encoded examples."""
@@ -140,11 +134,7 @@ class PlannerCollator:
             batch["labels"] = self._pad([it["labels"] for it in items], -100)
         pix = [it["pixel_values"] for it in items]
         if pix[0].ndim == 4:  # LLaVA-NeXT: (tiles, 3, H, W)
-            n = max(p.shape[0] for p in pix)
-            stacked = torch.zeros((len(pix), n, *pix[0].shape[1:]), dtype=pix[0].dtype)
-            for i, p in enumerate(pix):
-                stacked[i, : p.shape[0]] = p
-            batch["pixel_values"] = stacked
+            batch["pixel_values"] = pad_sequence(pix, batch_first=True)
         else:
             batch["pixel_values"] = torch.stack(pix)
         if "image_sizes" in items[0]:
