@@ -1,17 +1,17 @@
 """A lock file that works across processes and hosts on one shared filesystem (NFS, Lustre, GPFS).
 
-``flock``/``fcntl`` locks are not reliable on every shared filesystem, so the lock is a plain file
-created atomically (written beside the target and hard-linked into place, which fails if the name
-exists: :func:`rdd.atomic.write_json_atomic` with ``overwrite=False``). It records its owner (host,
-pid, a random token) and a heartbeat thread touches it while it is held.
+``flock``/``fcntl`` locks are not reliable on every shared filesystem, so the lock is
+:class:`filelock.SoftFileLease`: a marker file created with ``O_CREAT | O_EXCL`` that names its
+owner (host, pid, process start, a random token), refreshed by a heartbeat thread while it is held.
 
 A waiter takes a lock over when its owner is gone:
-- on the same host, at once, when the owner's pid no longer exists (a killed job);
-- on any host, when the lock file's mtime has not moved for ``stale_after_s`` seconds of the
-  waiter's own clock (a dead node). Only the waiter's monotonic clock is used, so clock skew between
-  hosts does not matter. A job that is paused (SIGSTOP, a suspended Slurm job) for longer than that
-  loses its lock. Assumed: one host name per pid namespace (containers that share a host name and a
-  cache folder but not their pids would take each other's locks over; only work is lost then).
+- on the same host, at once, when the owner's process no longer exists (a killed job);
+- on any host, when the marker has not changed for ``stale_after_s`` seconds of the waiter's own
+  monotonic clock (a dead node), so clock skew between hosts does not matter. A job that is paused
+  (SIGSTOP, a suspended Slurm job) for longer than that loses its lock.
+filelock takes a marker over by swapping names atomically (``renameat2(RENAME_EXCHANGE)``), which
+NFS and SMB refuse; there it never would, so a waiter whose lock file has not moved for twice
+``stale_after_s`` removes it (:meth:`FileLock.acquire`).
 
 Mutual exclusion here only saves work (a stage built once instead of twice). Correctness never
 depends on it: finished outputs appear by an atomic rename that refuses to replace an existing
@@ -20,19 +20,11 @@ entry, so even two holders (a lock wrongly judged stale) cannot leave a mixed or
 
 from __future__ import annotations
 
-import contextlib
-import json
 import logging
 import os
-import secrets
-import socket
-import threading
-import time
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from rdd.atomic import TargetExistsError, write_json_atomic
+from filelock import SoftFileLease, Timeout
 
 log = logging.getLogger(__name__)
 
@@ -40,40 +32,13 @@ HEARTBEAT_S = 10.0
 STALE_AFTER_S = 120.0
 
 
-def _read_owner(path: Path) -> dict[str, Any] | None:
-    """The owner record of a lock file, or None when it is gone (or unreadable: a foreign file)."""
+def _marker_id(path: Path) -> tuple[int, int] | None:
+    """Inode and mtime of the lock file (a refresh or a new owner changes them), None when absent."""
     try:
-        return json.loads(path.read_text())
+        st = path.stat()
     except FileNotFoundError:
         return None
-    except (OSError, ValueError):
-        return {}
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # exists, owned by someone else
-        return True
-    return True
-
-
-def _mtime(path: Path) -> float | None:
-    try:
-        return path.stat().st_mtime_ns / 1e9
-    except FileNotFoundError:
-        return None
-
-
-@dataclass
-class _Watch:
-    """What a waiter has seen of the current lock file: owner token, mtime, and since when."""
-
-    token: str | None
-    mtime: float | None
-    since: float
+    return st.st_ino, st.st_mtime_ns
 
 
 class FileLock:
@@ -81,7 +46,8 @@ class FileLock:
 
     Use as a context manager. ``heartbeat_s``: how often the holder touches the file;
     ``stale_after_s``: how long a waiter watches an unmoving lock before taking it over (keep it
-    several heartbeats long); ``poll_s``: the longest pause between a waiter's looks.
+    several heartbeats long; every job sharing the lock must use the same value);
+    ``poll_s``: the pause between a waiter's looks.
     """
 
     def __init__(
@@ -96,61 +62,47 @@ class FileLock:
         if stale_after_s <= heartbeat_s:
             raise ValueError(f"stale_after_s ({stale_after_s}) must exceed heartbeat_s ({heartbeat_s})")
         self.path = Path(path)
-        self.heartbeat_s = heartbeat_s
         self.stale_after_s = stale_after_s
-        self.poll_s = poll_s
         self.label = label or str(self.path)
-        self.token: str | None = None
-        self._stop = threading.Event()
-        self._beat: threading.Thread | None = None
+        self._lease = SoftFileLease(self.path, lease_duration=float(stale_after_s),
+                                    heartbeat_interval=float(heartbeat_s), poll_interval=float(poll_s),
+                                    on_compromise=self._lost)
 
-    # --- holding ---------------------------------------------------------------------------------
+    def _lost(self, compromise) -> None:
+        log.warning("lost %s (%s): another job judged it stale and took it over", self.label,
+                    compromise.reason)
+
     def try_acquire(self) -> bool:
-        """Take the lock if it is free; True when this object now holds it."""
-        token = secrets.token_hex(8)
-        owner = {"host": socket.gethostname(), "pid": os.getpid(), "token": token,
-                 "started": time.time(), "label": self.label}
+        """Take the lock if it is free (or its owner is gone); True when this object now holds it."""
         try:
-            write_json_atomic(self.path, owner, overwrite=False)
-        except TargetExistsError:
-            # Over NFS a retransmitted link() can report EEXIST for the link it just made itself.
-            if (_read_owner(self.path) or {}).get("token") != token:
-                return False
-        self.token = token
-        self._stop.clear()
-        self._beat = threading.Thread(target=self._heartbeat, name=f"lock-heartbeat {self.label}",
-                                      daemon=True)
-        self._beat.start()
+            self._lease.acquire(blocking=False)
+        except Timeout:
+            return False
         return True
 
     def acquire(self) -> None:
         """Wait until the lock is free (or its owner is gone) and take it."""
-        watch = _Watch(None, None, time.monotonic())
-        pause = min(0.05, self.poll_s)
-        told = False
-        while not self.try_acquire():
-            owner = _read_owner(self.path)
-            if owner is None:
-                continue  # released between our two looks: try again at once
-            if not told:
-                log.info("waiting for %s (held by %s pid %s)", self.label, owner.get("host"),
-                         owner.get("pid"))
-                told = True
-            if self._owner_gone(owner, watch):
-                self._take_over(owner)
-                continue
-            time.sleep(pause)
-            pause = min(pause * 2, self.poll_s)
+        if self.try_acquire():
+            return
+        owner = self._lease.owner
+        log.info("waiting for %s (held by %s pid %s)", self.label, owner and owner.hostname,
+                 owner and owner.pid)
+        while True:
+            seen = _marker_id(self.path)
+            try:
+                self._lease.acquire(timeout=2 * self.stale_after_s)
+                return
+            except Timeout:
+                # Still there and unmoved for twice the stale limit: filelock could not swap it out
+                # (a filesystem without the exchange), so remove it and take the free name.
+                if seen is not None and _marker_id(self.path) == seen:
+                    log.warning("took over %s: its lock file has not moved for %g s", self.label,
+                                2 * self.stale_after_s)
+                    self._lease.force_break()
 
     def release(self) -> None:
         """Stop the heartbeat and remove the lock file if it is still ours."""
-        self._stop.set()
-        if self._beat is not None:
-            self._beat.join()
-            self._beat = None
-        if self.token is not None and (_read_owner(self.path) or {}).get("token") == self.token:
-            self.path.unlink(missing_ok=True)
-        self.token = None
+        self._lease.release()
 
     def __enter__(self) -> FileLock:
         self.acquire()
@@ -158,42 +110,3 @@ class FileLock:
 
     def __exit__(self, *exc: object) -> None:
         self.release()
-
-    def _heartbeat(self) -> None:
-        while not self._stop.wait(self.heartbeat_s):
-            if (_read_owner(self.path) or {}).get("token") != self.token:
-                log.warning("lost %s: another job judged it stale and took it over", self.label)
-                return
-            with contextlib.suppress(FileNotFoundError):
-                os.utime(self.path)
-
-    # --- waiting ---------------------------------------------------------------------------------
-    def _owner_gone(self, owner: dict[str, Any], watch: _Watch) -> bool:
-        """True when the owner is known dead, or its lock has not moved for ``stale_after_s``."""
-        if owner.get("host") == socket.gethostname() and isinstance(owner.get("pid"), int) \
-                and not _pid_alive(owner["pid"]):
-            return True
-        now = time.monotonic()
-        mtime = _mtime(self.path)
-        if owner.get("token") != watch.token or mtime != watch.mtime:
-            watch.token, watch.mtime, watch.since = owner.get("token"), mtime, now
-            return False
-        return now - watch.since >= self.stale_after_s
-
-    def _take_over(self, owner: dict[str, Any]) -> None:
-        """Remove the stale lock file ``owner`` wrote, and nothing newer that replaced it meanwhile."""
-        grave = self.path.with_name(f"{self.path.name}.stale-{secrets.token_hex(4)}")
-        try:
-            os.rename(self.path, grave)
-        except FileNotFoundError:
-            return  # another waiter removed it first
-        moved = _read_owner(grave) or {}
-        if moved.get("token") != owner.get("token"):
-            # Another waiter already replaced the stale lock and we moved its fresh one: put it back
-            # (unless a third took the free name, in which case both build and the rename decides).
-            with contextlib.suppress(FileExistsError):
-                os.link(grave, self.path)
-        else:
-            log.warning("took over %s from %s pid %s (owner gone)", self.label, owner.get("host"),
-                        owner.get("pid"))
-        grave.unlink(missing_ok=True)

@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -14,6 +15,12 @@ from experiments.locks import FileLock
 from experiments.stages import StageCache, spec_key
 
 ROOT = Path(__file__).resolve().parents[2]
+
+
+def _lease_marker(host: str, pid: int, lease_s: float) -> str:
+    """The lock file a job on ``host`` writes (filelock's protocol 2 lease record)."""
+    return f"filelock/2\npid={pid}\nhost={host}\nmode=lease\ntoken=dead\nduration={lease_s!r}\n"
+
 
 # One sweep job needing stage "s": it waits for the go file, then asks the cache; its build records
 # the builder's pid in a log (one line per build) and holds for a while.
@@ -105,45 +112,46 @@ def test_stale_lock_of_a_dead_node_is_taken_over(tmp_path: Path):
     lock = tmp_path / "s" / f".{key}.lock.json"
     lock.parent.mkdir(parents=True)
     # A lock from another host: its pid means nothing here, only its unmoving heartbeat counts.
-    lock.write_text(json.dumps({"host": "node-that-died", "pid": os.getpid(), "token": "dead"}))
+    lock.write_text(_lease_marker("node-that-died", os.getpid(), 0.5))
     start = time.monotonic()
     path, _ = cache.get_or_build("s", {"a": 1}, lambda d: (d / "x").write_text("built"))
     assert time.monotonic() - start >= 0.5  # it waited the stale limit before taking over
     assert (path / "x").read_text() == "built" and not lock.exists()
 
 
-def test_take_over_never_removes_a_fresh_lock(tmp_path: Path):
-    lock_path = tmp_path / ".k.lock.json"
-    lock_path.write_text(json.dumps({"host": "h", "pid": 1, "token": "stale"}))
-    waiter = FileLock(lock_path, heartbeat_s=0.05, stale_after_s=0.2)
-    # Another waiter replaced the stale lock with its own before this one acted on what it saw.
-    lock_path.unlink()
-    fresh = FileLock(lock_path, heartbeat_s=0.05, stale_after_s=0.2)
-    assert fresh.try_acquire()
-    waiter._take_over({"host": "h", "pid": 1, "token": "stale"})
-    assert json.loads(lock_path.read_text())["token"] == fresh.token
+def test_a_live_lock_is_never_taken_over(tmp_path: Path):
+    path = tmp_path / ".k.lock.json"
+    holder = FileLock(path, heartbeat_s=0.05, stale_after_s=0.2)
+    assert holder.try_acquire()
+    waiter = FileLock(path, heartbeat_s=0.05, stale_after_s=0.2)
     assert not waiter.try_acquire()
-    fresh.release()
-    assert not lock_path.exists()
-    assert waiter.try_acquire()
-    waiter.release()
+    got: list[float] = []
+
+    def wait_then_take() -> None:
+        waiter.acquire()
+        got.append(time.monotonic())
+        waiter.release()
+
+    thread = threading.Thread(target=wait_then_take)
+    thread.start()
+    time.sleep(1.0)  # five stale limits: the heartbeat keeps the waiter off
+    assert not got
+    released = time.monotonic()
+    holder.release()
+    thread.join(timeout=30)
+    assert got and got[0] >= released
     assert list(tmp_path.iterdir()) == []
 
 
-def test_a_link_that_reports_exists_but_made_our_lock_still_acquires(tmp_path: Path, monkeypatch):
-    import experiments.locks as locks
-    from rdd.atomic import TargetExistsError
+def test_stale_lock_is_taken_over_where_names_cannot_be_exchanged(tmp_path: Path, monkeypatch):
+    """NFS and SMB refuse renameat2's exchange, with which filelock swaps a stale marker out."""
+    import filelock._soft
 
-    real = locks.write_json_atomic
-
-    def lost_reply(path, obj, **kw):  # the server made the link, the client saw EEXIST on a retry
-        real(path, obj, **kw)
-        raise TargetExistsError(f"{path} already exists")
-
-    monkeypatch.setattr(locks, "write_json_atomic", lost_reply)
-    lock = FileLock(tmp_path / ".k.lock.json", heartbeat_s=0.05, stale_after_s=0.2)
-    assert lock.try_acquire()
-    other = FileLock(tmp_path / ".k.lock.json", heartbeat_s=0.05, stale_after_s=0.2)
-    assert not other.try_acquire()  # someone else's lock is still refused
-    lock.release()
-    assert not (tmp_path / ".k.lock.json").exists()
+    monkeypatch.setattr(filelock._soft, "exchange_names", lambda source, target: False)
+    path = tmp_path / ".k.lock.json"
+    path.write_text(_lease_marker("node-that-died", os.getpid(), 0.2))
+    start = time.monotonic()
+    with FileLock(path, heartbeat_s=0.05, stale_after_s=0.2):
+        assert time.monotonic() - start >= 0.4  # twice the stale limit
+        assert path.exists()
+    assert list(tmp_path.iterdir()) == []
