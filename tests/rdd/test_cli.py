@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rdd.cli import main, parse_options
+from rdd.cli import main
+from rdd.cli.common import parse_options
 from rdd.data.episode import Episode
 from rdd.data.native import save_episode
 

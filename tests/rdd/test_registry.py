@@ -49,7 +49,7 @@ def test_unknown_names_fail_naming_what_exists(group, name):
 
 
 def test_cli_offers_exactly_the_registry():
-    from rdd.cli import DECOMPOSERS, decomposer_help
+    from rdd.cli.components import DECOMPOSERS, decomposer_help
 
     assert list(DECOMPOSERS) == registry.available("decomposer")
     help_text = decomposer_help()

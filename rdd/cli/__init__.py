@@ -1,0 +1,63 @@
+"""``python -m rdd``: build a sub-task database, decompose demonstrations, evaluate, plot.
+
+Subcommands: ``build-db``, ``calibrate``, ``decompose``, ``evaluate``, ``plot``, ``demo``. Every expected failure
+is reported as one line naming the file or option at fault, with exit status 2 (``-v`` also prints
+the traceback); Ctrl-C stops with status 130 and leaves no partial output. Outputs are written
+atomically and never replace an existing file or folder without ``--force``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import pickle
+import sys
+import traceback
+from collections.abc import Sequence
+
+from rdd.cli import build_db, calibrate, decompose, demo, evaluate, plot
+from rdd.cli.common import CLIError
+
+# One module per subcommand, each adding its own parser; the order is the order of ``--help``.
+SUBCOMMANDS = (build_db, calibrate, decompose, evaluate, plot, demo)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``python -m rdd``."""
+    parser = argparse.ArgumentParser(prog="python -m rdd", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="log each step, and print the traceback of an error")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for module in SUBCOMMANDS:
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m rdd`` and the ``rdd`` script."""
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted ({args.command}): stopped; no partial output was written", file=sys.stderr)
+        return 130
+    except CLIError as exc:
+        return _report(args, str(exc), "error")
+    except (FileNotFoundError, KeyError, ValueError, ImportError, RuntimeError, OSError,
+            pickle.UnpicklingError) as exc:
+        # Library errors already name the file/field at fault; show them without a traceback.
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        return _report(args, str(msg), f"error ({args.command})")
+
+
+def _report(args: argparse.Namespace, message: str, prefix: str) -> int:
+    """Print an expected error as one line (after its traceback with -v); exit status 2."""
+    if args.verbose:
+        traceback.print_exc()
+    print(f"{prefix}: {message}", file=sys.stderr)
+    return 2
+
+
+__all__ = ["CLIError", "build_parser", "main"]

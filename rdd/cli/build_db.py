@@ -1,0 +1,112 @@
+"""``python -m rdd build-db``: segment episodes, build the sub-task database and calibrate it."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from rdd.cli.common import (
+    CLIError,
+    check_output,
+    embed_all,
+    load_data,
+    log,
+    make_cache,
+    make_encoder,
+    parse_options,
+    progress,
+    resolve_views,
+)
+from rdd.cli.components import expert_decomposer
+from rdd.cli.options import data_args, embed_args, expert_args, force_arg, with_reader_help
+
+
+def cmd_build_db(args: argparse.Namespace) -> int:
+    """Segment episodes (their sub-task annotations or the expert rule), build and calibrate the database."""
+    from rdd.calibrate import CalibrationError, calibrate, sample_episodes, summary
+    from rdd.database import SubtaskDatabase
+
+    out = check_output(args.out, "--out", args.force, kind="dir")
+    episodes = load_data(args)
+    views = resolve_views(args.views, episodes[0])
+    encoder = make_encoder(args.encoder, parse_options(args.encoder_option, "--encoder-option"))
+    annotated = [e for e in episodes if e.segments is not None]
+    source = args.segments
+    if source == "auto":
+        source = "subtasks" if annotated and len(annotated) == len(episodes) else "expert"
+        if annotated and len(annotated) != len(episodes):
+            log.warning("only %d of %d episodes carry sub-task annotations; using the expert rule for all "
+                        "(pass --segments subtasks to require them)", len(annotated), len(episodes))
+    if source == "subtasks":
+        missing = [e.name for e in episodes if e.segments is None]
+        if missing:
+            raise CLIError(f"--segments subtasks: episodes {missing} of --data {args.data} carry no sub-task "
+                           "annotations (LeRobot: language_persistent subtask rows)")
+        segmentations = [e.segments for e in episodes]
+        instructions = [e.instructions or [""] * len(e.segments) for e in episodes]
+    else:
+        expert = expert_decomposer(args)
+        segmentations = []
+        for ep in episodes:
+            try:
+                segmentations.append(expert.decompose(ep).segments)
+            except ValueError as exc:
+                raise CLIError(f"--data {args.data}: {exc}") from exc
+        instructions = None
+    print(f"segments: {source} ({sum(len(s) for s in segmentations)} sub-tasks in {len(episodes)} episodes)",
+          file=sys.stderr)
+    names = [e.name for e in episodes]
+    keep: list[str] = []
+    if args.no_calibrate:
+        pass
+    elif len(set(names)) < 2:
+        print(f"warning: calibration skipped: --data {args.data} has one episode, nothing to leave out",
+              file=sys.stderr)
+    else:
+        try:
+            keep = sample_episodes(names, args.calibration_sample, args.calibration_seed)
+        except CalibrationError as exc:
+            raise CLIError(f"--calibration-sample: {exc}") from exc
+    cache = make_cache(args)
+    # Only each segment's first and last frame are encoded, except for the calibration sample.
+    embed_all([e for e in episodes if e.name in keep], encoder, views, cache)
+    db = SubtaskDatabase.build(episodes, segmentations, encoder, views=views, cache=cache,
+                               instructions=instructions, normalize_views=not args.raw_views,
+                               keep_frames=keep)
+    db.meta["source"] = {"format": args.format, "data": str(args.data),
+                         "episodes": names, "segmenter": source}
+    if keep:
+        try:
+            db.meta["calibration"] = calibrate(db, sample=args.calibration_sample,
+                                               seed=args.calibration_seed,
+                                               progress=lambda xs: progress(xs, "calibration"))
+        except CalibrationError as exc:
+            raise CLIError(str(exc)) from exc
+    out = db.save(out, overwrite=args.force)
+    print(f"built database {out}: {len(db)} sub-tasks from {len(episodes)} episodes "
+          f"(encoder {encoder.name}, views {list(views)}, segments {source})")
+    if db.meta.get("calibration"):
+        print(summary(db.meta["calibration"]))
+    return 0
+
+
+def add_parser(sub) -> None:
+    """The ``build-db`` subcommand and its options."""
+    p = sub.add_parser("build-db", help="segment episodes and build the sub-task database", **with_reader_help())
+    data_args(p)
+    p.add_argument("--encoder", required=True, help="encoder name (rdd.encoders), e.g. effnet_lite0")
+    embed_args(p)
+    expert_args(p)
+    p.add_argument("--segments", choices=("auto", "subtasks", "expert"), default="auto",
+                   help="sub-tasks from the episodes' annotations (LeRobot language_persistent subtask rows) "
+                        "or the expert rule; auto: annotations when every episode has them")
+    p.add_argument("--out", required=True, help="database directory")
+    force_arg(p)
+    p.add_argument("--no-calibrate", action="store_true",
+                   help="skip leave-one-episode-out calibration (embeds only segment boundary frames)")
+    p.add_argument("--calibration-sample", type=int, default=10, metavar="N",
+                   help="episodes held out in turn by calibration (default 10)")
+    p.add_argument("--calibration-seed", type=int, default=0)
+    p.add_argument("--raw-views", action="store_true",
+                   help="concatenate raw per-view embeddings (the official code) instead of L2-normalised ones")
+    p.set_defaults(func=cmd_build_db)

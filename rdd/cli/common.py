@@ -1,0 +1,158 @@
+"""What every subcommand shares: the one-line error, safe outputs, episodes in, encoders and the cache."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from rdd.atomic import write_json_atomic as _write_json
+from rdd.data.episode import Episode
+from rdd.encoders.embed import DEFAULT_VIEWS
+from rdd.progress import track_episodes
+
+log = logging.getLogger("rdd")
+
+
+class CLIError(Exception):
+    """A user-facing error: printed as one line, exit status 2."""
+
+
+def parse_options(items: Sequence[str] | None, flag: str) -> dict[str, Any]:
+    """``KEY=VALUE`` pairs; VALUE is read as JSON when it parses, else kept as a string."""
+    out: dict[str, Any] = {}
+    for item in items or ():
+        if "=" not in item:
+            raise CLIError(f"{flag} {item!r}: expected KEY=VALUE")
+        key, value = item.split("=", 1)
+        key = key.strip().replace("-", "_")
+        if not key.isidentifier():
+            raise CLIError(f"{flag} {item!r}: {key!r} is not a valid option name")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def dumps_compact(data: Any) -> str:
+    """JSON with the top level indented and each list item of ``episodes`` on one line."""
+    if isinstance(data, dict) and isinstance(data.get("episodes"), list):
+        head = {k: v for k, v in data.items() if k != "episodes"}
+        lines = ",\n  ".join(json.dumps(r) for r in data["episodes"])
+        inner = json.dumps(head, indent=1)[:-1].rstrip()
+        sep = ",\n" if head else "\n"
+        return f'{inner}{sep} "episodes": [\n  {lines}\n ]\n}}\n'
+    return json.dumps(data, indent=1) + "\n"
+
+
+def check_output(path: str | Path | None, flag: str, force: bool, kind: str = "file") -> Path | None:
+    """Refuse an output path that is a folder (for files), a file (for folders), or exists without --force."""
+    if path is None:
+        return None
+    path = Path(path)
+    if kind == "file" and path.is_dir():
+        raise CLIError(f"{flag} {path}: is an existing folder; give a file name")
+    if kind == "dir" and path.exists() and not path.is_dir():
+        raise CLIError(f"{flag} {path}: is an existing file; give a folder name")
+    if path.exists() and not force:
+        raise CLIError(f"{flag} {path}: already exists; pass --force to replace it")
+    return path
+
+
+def progress(items, desc: str):
+    """A tqdm bar over ``items`` on stderr (a terminal only); frames-aware bars: ``track_episodes``."""
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover - tqdm is a dependency
+        return items
+    return tqdm(items, desc=desc, file=sys.stderr, disable=None, dynamic_ncols=True)
+
+
+def write_json_atomic(path: str | Path, data: Any, overwrite: bool = True) -> Path:
+    """Write ``data`` as compact JSON to ``path`` atomically (``rdd.atomic``)."""
+    return _write_json(path, data, overwrite=overwrite, dumps=dumps_compact)
+
+
+def load_data(args: argparse.Namespace) -> list[Episode]:
+    """Episodes at ``--data`` in ``--format``, filtered by ``--include`` / ``--exclude``."""
+    from rdd.data.load import load_episodes
+
+    if not Path(args.data).exists():
+        raise CLIError(f"--data {args.data}: no such file or folder")
+    options = parse_options(args.reader_option, "--reader-option")
+    try:
+        episodes = load_episodes(args.format, args.data, **options)
+    except TypeError as exc:
+        raise CLIError(f"--reader-option for --format {args.format}: {exc}".replace("load_episodes() ", "")) from exc
+    except ValueError as exc:
+        if "reader option" in str(exc):
+            raise CLIError(f"--reader-option: {exc}") from exc
+        raise
+    if args.format == "lerobot" and episodes:
+        from rdd.data.lerobot import describe_layout
+
+        print(f"lerobot: {describe_layout(episodes[0])}", file=sys.stderr)
+    names = [e.name for e in episodes]
+    for flag, wanted in (("--include", args.include), ("--exclude", args.exclude)):
+        unknown = sorted(set(wanted or ()) - set(names))
+        if unknown:
+            raise CLIError(f"{flag}: no episode named {unknown} in {args.data}; have {names}")
+    if args.include:
+        episodes = [e for e in episodes if e.name in set(args.include)]
+    if args.exclude:
+        episodes = [e for e in episodes if e.name not in set(args.exclude)]
+    if not episodes:
+        raise CLIError(f"--data {args.data}: no episodes left after --include/--exclude")
+    return episodes
+
+
+def resolve_views(args_views: Sequence[str] | None, episode: Episode) -> tuple[str, ...]:
+    """``--views``, else front+wrist when the episode has them, else all its views."""
+    if args_views:
+        views = tuple(args_views)
+    elif all(v in episode.views for v in DEFAULT_VIEWS):
+        views = DEFAULT_VIEWS
+    else:
+        views = tuple(sorted(episode.views))
+    missing = [v for v in views if v not in episode.views]
+    if missing:
+        raise CLIError(f"--views: episode {episode.name!r} has no view {missing}; has {sorted(episode.views)}")
+    if not views:
+        raise CLIError(f"episode {episode.name!r} has no camera views to embed")
+    return views
+
+
+def make_encoder(name: str, options: dict[str, Any]):
+    """``rdd.encoders.load_encoder`` with errors turned into CLI errors."""
+    try:
+        from rdd.encoders import load_encoder
+    except ImportError as exc:  # pragma: no cover - encoders are part of the package
+        raise CLIError(f"--encoder {name}: encoders unavailable ({exc})") from exc
+    try:
+        return load_encoder(name, **options)
+    except (ValueError, TypeError, FileNotFoundError, ImportError) as exc:
+        raise CLIError(f"--encoder {name}: {exc}") from exc
+
+
+def make_cache(args: argparse.Namespace):
+    """The embedding cache (``--cache-dir``, default location) or None with ``--no-cache``."""
+    if args.no_cache:
+        return None
+    from rdd.encoders.cache import EmbeddingCache
+
+    return EmbeddingCache(args.cache_dir)
+
+
+def embed_all(episodes: Sequence[Episode], encoder, views: Sequence[str], cache) -> None:
+    """Fill the embedding cache episode by episode so the progress bar shows the slow part."""
+    if cache is None:
+        return
+    from rdd.encoders.embed import episode_frame_vectors
+
+    for ep in track_episodes(episodes, f"embedding ({encoder.name})"):
+        episode_frame_vectors(ep, encoder, views=views, cache=cache)

@@ -1,0 +1,191 @@
+"""``python -m rdd decompose``: cut episodes into sub-task segments; JSON and/or a LeRobot copy."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from rdd.cli.common import (
+    CLIError,
+    check_output,
+    embed_all,
+    load_data,
+    make_cache,
+    make_encoder,
+    parse_options,
+    write_json_atomic,
+)
+from rdd.cli.components import DECOMPOSERS, decomposer_help, make_decomposer
+from rdd.cli.options import data_args, embed_args, expert_args, force_arg, reader_help
+from rdd.data.episode import Episode
+from rdd.progress import track_episodes
+
+OUTPUT_VERSION = 1
+FALLBACK_FIELDS = ("task", "episode", "index", "count", "start", "end")
+
+
+def fallback_instruction(template: str, episode: Episode, index: int, count: int, segment) -> str:
+    """``--fallback-instruction`` filled in for one segment (fields: FALLBACK_FIELDS)."""
+    try:
+        return template.format(task=episode.goal or episode.task, episode=episode.name, index=index + 1,
+                               count=count, start=int(segment[0]), end=int(segment[1]))
+    except (KeyError, IndexError, ValueError) as exc:
+        raise CLIError(f"--fallback-instruction {template!r}: {exc!r}; fields: "
+                       + ", ".join("{" + f + "}" for f in FALLBACK_FIELDS)) from exc
+
+
+def episode_record(episode: Episode, result) -> dict[str, Any]:
+    """One episode's entry in the ``decompose`` output."""
+    from rdd.segments import validate_segments
+
+    segments = validate_segments(result.segments, episode.num_frames)
+    instructions = getattr(result, "instructions", None)
+    if instructions is None and result.neighbours is not None:
+        instructions = [n.get("instruction") for n in result.neighbours]
+    return {
+        "episode": episode.name,
+        "num_frames": episode.num_frames,
+        "segments": [[s, e] for s, e in segments],
+        "keyframes": [e - 1 for _, e in segments],
+        "scores": None if result.scores is None else [float(x) for x in result.scores],
+        "instructions": None if instructions is None else ["" if t is None else str(t) for t in instructions],
+        "instruction_sources": None,
+        "novelty": None if result.novelty is None else float(result.novelty),
+    }
+
+
+def fill_instructions(record: dict[str, Any], episode: Episode, labeler=None, fallback: str | None = None) -> None:
+    """Give every segment without an instruction the labeler's, else the fallback's (recording which)."""
+    if labeler is None and fallback is None:
+        return
+    segments = [tuple(s) for s in record["segments"]]
+    given = record["instructions"] or [""] * len(segments)
+    sources = ["decomposer" if t and t.strip() else None for t in given]
+    texts = list(given)
+    missing = [j for j, src in enumerate(sources) if src is None]
+    if labeler is not None and missing:
+        for j, text in zip(missing, labeler.label_all(episode, [segments[j] for j in missing]), strict=True):
+            if text and text.strip():
+                texts[j], sources[j] = text, "labeler"
+    if fallback is not None:
+        for j, src in enumerate(sources):
+            if src is None:
+                texts[j] = fallback_instruction(fallback, episode, j, len(segments), segments[j])
+                sources[j] = "fallback"
+    record["instructions"], record["instruction_sources"] = texts, sources
+
+
+def make_labeler(args: argparse.Namespace):
+    """``--labeler retrieval``: the nearest entry of ``--label-db`` (default ``--db``) names a segment."""
+    if args.labeler is None:
+        return None
+    from rdd.database import SubtaskDatabase
+    from rdd.retrieval_labeler import RetrievalLabeler
+
+    path = args.label_db or args.db
+    if not path:
+        raise CLIError("--labeler retrieval needs --label-db DIR (a database whose entries carry instructions)")
+    db = SubtaskDatabase.load(path)
+    enc_name = db.meta.get("encoder")
+    if not enc_name:
+        raise CLIError(f"--label-db {path} records no encoder")
+    encoder = make_encoder(enc_name, parse_options(args.encoder_option, "--encoder-option"))
+    try:
+        return RetrievalLabeler(db, encoder, cache=make_cache(args))
+    except ValueError as exc:
+        raise CLIError(f"--label-db {path}: {exc}") from exc
+
+
+def lerobot_subtasks(episodes: Sequence[Episode], records: Sequence[dict[str, Any]], decomposer: str,
+                     ) -> dict[int, tuple[list, list[str]]]:
+    """Episode index -> (segments, instructions) for the LeRobot writer; every segment needs an instruction."""
+    out = {}
+    for ep, rec in zip(episodes, records, strict=True):
+        instr = rec["instructions"]
+        empty = [j for j, t in enumerate(instr or [None] * len(rec["segments"])) if not t or not str(t).strip()]
+        if empty:
+            raise CLIError(
+                f"--write-lerobot: decomposer {decomposer} gives no instruction for segments {empty} of episode "
+                f"{ep.name!r} (rdd takes them from its database's entries: build it from annotated episodes); "
+                "pass --labeler retrieval --label-db DB (a database with instructions) or "
+                "--fallback-instruction TEMPLATE, e.g. '{task} (step {index} of {count})'"
+            )
+        out[int(ep.meta["episode_index"])] = ([tuple(s) for s in rec["segments"]], list(instr))
+    return out
+
+
+def cmd_decompose(args: argparse.Namespace) -> int:
+    """Decompose every episode at ``--data``; write the segments as JSON and/or into a LeRobot copy."""
+    if args.out is None and args.write_lerobot is None:
+        raise CLIError("decompose needs --out FILE.json, --write-lerobot DIR, or both")
+    if args.write_lerobot is not None and args.format != "lerobot":
+        raise CLIError(f"--write-lerobot needs --format lerobot, not {args.format}")
+    out = check_output(args.out, "--out", args.force)
+    lerobot_out = check_output(args.write_lerobot, "--write-lerobot", False, kind="dir")
+    if lerobot_out is not None and Path(args.data).resolve() in (lerobot_out.resolve(), *lerobot_out.resolve().parents):
+        raise CLIError(f"--write-lerobot {lerobot_out}: refusing to write into the source dataset {args.data}")
+    if args.fallback_instruction is not None:
+        fallback_instruction(args.fallback_instruction, Episode(name="check", views={}), 0, 1, (0, 1))
+    episodes = load_data(args)
+    decomposer, config = make_decomposer(args, episodes[0])
+    labeler = make_labeler(args)
+    config.update(format=args.format, data=str(args.data), version=OUTPUT_VERSION,
+                  fallback_instruction=args.fallback_instruction, labeler=args.labeler,
+                  label_db=None if labeler is None else str(args.label_db or args.db))
+    if args.decomposer in ("rdd", "uvd"):
+        embed_all(episodes, decomposer.encoder, decomposer.views, getattr(decomposer, "cache", None))
+    records = []
+    for ep in track_episodes(episodes, f"decompose ({args.decomposer})"):
+        try:
+            record = episode_record(ep, decomposer.decompose(ep))
+            fill_instructions(record, ep, labeler, args.fallback_instruction)
+            records.append(record)
+        except ValueError as exc:
+            raise CLIError(f"episode {ep.name!r} ({args.data}): {exc}") from exc
+    subtasks = lerobot_subtasks(episodes, records, args.decomposer) if lerobot_out is not None else None
+    if out is not None:
+        write_json_atomic(out, {"config": config, "episodes": records}, overwrite=args.force)
+        print(f"wrote {out}: {len(records)} episodes decomposed with {args.decomposer}")
+    if subtasks is not None:
+        from rdd.data.lerobot_write import write_subtasks
+
+        write_subtasks(args.data, lerobot_out, subtasks)
+        print(f"wrote {lerobot_out}: LeRobot dataset with sub-tasks of {len(subtasks)} episodes "
+              "(language_persistent)")
+    return 0
+
+
+def add_parser(sub) -> None:
+    """The ``decompose`` subcommand and its options."""
+    p = sub.add_parser("decompose", help="decompose episodes into sub-task segments",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=decomposer_help() + "\n\n" + reader_help())
+    data_args(p)
+    p.add_argument("--decomposer", choices=DECOMPOSERS, required=True)
+    p.add_argument("--encoder", help="encoder for rdd/uvd (rdd: default the database's)")
+    p.add_argument("--db", help="sub-task database directory (rdd)")
+    p.add_argument("--alpha", type=float, help="rdd: weight of the duration term")
+    p.add_argument("--max-len", type=int, help="rdd: longest segment in frames")
+    p.add_argument("--no-calibration", action="store_true",
+                   help="rdd: ignore the database's calibrated options (use the paper's: alpha 1, "
+                        "min_len 2, no max_len)")
+    p.add_argument("--option", action="append", metavar="KEY=VALUE",
+                   help="decomposer keyword, e.g. n_segments=5 (uniform), min_interval=10 (uvd), "
+                        "stopping_fraction=0.1 (expert); unknown keys and bad values are errors")
+    embed_args(p)
+    expert_args(p)
+    p.add_argument("--out", help="output JSON file")
+    p.add_argument("--write-lerobot", metavar="DIR",
+                   help="also write DIR, a copy of the LeRobot dataset --data whose language_persistent "
+                        "column carries the sub-tasks (new folder; never the source)")
+    p.add_argument("--labeler", choices=("retrieval",),
+                   help="name segments the decomposer gives no instruction: retrieval = the instruction of "
+                        "the nearest entry of --label-db")
+    p.add_argument("--label-db", metavar="DIR", help="database for --labeler retrieval (default --db)")
+    p.add_argument("--fallback-instruction", metavar="TEMPLATE",
+                   help="instruction for segments the decomposer gives none, with fields "
+                        + ", ".join("{" + f + "}" for f in FALLBACK_FIELDS))
+    force_arg(p)
+    p.set_defaults(func=cmd_decompose)

@@ -1,0 +1,98 @@
+"""``python -m rdd evaluate``: score decompose outputs against ground truth; reading those outputs."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from rdd.cli.common import CLIError, check_output, log, write_json_atomic
+from rdd.cli.options import force_arg
+
+
+def read_segments_file(path: str | Path) -> dict[str, dict[str, Any]]:
+    """Episodes of a ``decompose`` output file by name."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise CLIError(f"{path}: no such file") from exc
+    except json.JSONDecodeError as exc:
+        raise CLIError(f"{path}: invalid JSON ({exc})") from exc
+    if not isinstance(data, dict) or not isinstance(data.get("episodes"), list):
+        raise CLIError(f"{path}: expected an object with an 'episodes' list (a decompose output)")
+    out = {}
+    for i, rec in enumerate(data["episodes"]):
+        if not isinstance(rec, dict) or "episode" not in rec or "segments" not in rec:
+            raise CLIError(f"{path}: episodes[{i}] lacks 'episode' or 'segments'")
+        out[str(rec["episode"])] = rec
+    return out
+
+
+def pred_methods(items: Sequence[str], flag: str = "--pred") -> dict[str, dict[str, dict[str, Any]]]:
+    """``LABEL=FILE`` (or bare ``FILE``, labelled by its decomposer) -> {label: {episode: record}}.
+
+    Files given the same explicit label (e.g. leave-one-out folds) are merged as episodes of one
+    method; two unlabelled files whose decomposer is the same are an error (name them).
+    """
+    methods: dict[str, dict[str, dict[str, Any]]] = {}
+    explicit: dict[str, bool] = {}
+    for item in items:
+        label, sep, path = item.partition("=")
+        if not sep or not label or Path(item).exists():
+            label, path, named = "", item, False
+        else:
+            named = True
+        records = read_segments_file(path)
+        if not named:
+            config = json.loads(Path(path).read_text()).get("config") or {}
+            label = str(config.get("decomposer") or Path(path).stem)
+        if label in methods and not (named and explicit[label]):
+            raise CLIError(f"{flag} {item}: a method is already labelled {label!r}; "
+                           f"name them, e.g. {flag} a={path} b=other.json (same name = one method's folds)")
+        explicit[label] = named
+        merged = methods.setdefault(label, {})
+        for name, rec in records.items():
+            if name in merged:
+                raise CLIError(f"{flag} {item}: episode {name!r} of method {label!r} came from an earlier file")
+            merged[name] = rec
+    return methods
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """mIoU (paper and symmetric) and boundary P/R/F1 of each ``--pred`` method against ``--gt``."""
+    from rdd.compare import compare_methods, format_table
+
+    out = check_output(args.out, "--out", args.force)
+    methods = pred_methods(args.pred)
+    gt = read_segments_file(args.gt)
+    try:
+        result = compare_methods(methods, gt, args.tolerance, allow_partial=args.allow_partial)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from exc
+    for label, m in result["methods"].items():
+        if m["left_out"]["pred_only"] or m["left_out"]["gt_only"]:
+            log.warning("--pred %s: scored %d shared episodes; left out %s", label, m["num_episodes"],
+                        m["left_out"])
+    result.update(pred=list(args.pred), gt=str(args.gt))
+    print(format_table(result))
+    if out is not None:
+        write_json_atomic(out, result, overwrite=args.force)
+    return 0
+
+
+def add_parser(sub) -> None:
+    """The ``evaluate`` subcommand and its options."""
+    p = sub.add_parser("evaluate", help="compare decompose outputs (one or more methods) with ground truth")
+    p.add_argument("--pred", nargs="+", required=True, metavar="[LABEL=]FILE",
+                   help="one decompose output per method, e.g. rdd=rdd.json uvd=uvd.json (same LABEL twice: "
+                        "one method's folds)")
+    p.add_argument("--gt", required=True)
+    p.add_argument("--tolerance", type=int, default=2, help="boundary tolerance in frames")
+    p.add_argument("--allow-partial", action="store_true",
+                   help="score only the episodes a method shares with --gt (default: differing sets are an error)")
+    p.add_argument("--out", help="write the metrics JSON here")
+    force_arg(p)
+    p.set_defaults(func=cmd_evaluate)

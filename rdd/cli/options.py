@@ -1,0 +1,55 @@
+"""The argument groups several subcommands share, and the reader options listed in ``--help``."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from rdd.data.load import FORMATS
+
+
+def data_args(p: argparse.ArgumentParser, data_required: bool = True) -> None:
+    """``--format``, ``--data``, ``--reader-option``, ``--include``, ``--exclude``."""
+    p.add_argument("--format", choices=FORMATS, required=True, help="episode format of --data")
+    p.add_argument("--data", required=data_required, help="one episode or a folder of episodes")
+    p.add_argument("--reader-option", action="append", metavar="KEY=VALUE",
+                   help="reader keyword (JSON value); the options of each format are listed below")
+    p.add_argument("--include", nargs="+", metavar="NAME", help="only these episodes")
+    p.add_argument("--exclude", nargs="+", metavar="NAME", help="skip these episodes")
+
+
+def embed_args(p: argparse.ArgumentParser) -> None:
+    """``--views``, ``--encoder-option`` and the embedding cache."""
+    p.add_argument("--views", nargs="+", help="camera views (default front wrist, else all)")
+    p.add_argument("--encoder-option", action="append", metavar="KEY=VALUE")
+    p.add_argument("--cache-dir", help="embedding cache folder (default $RDD_CACHE_DIR or ~/.cache/rdd)")
+    p.add_argument("--no-cache", action="store_true", help="do not cache embeddings")
+
+
+def expert_args(p: argparse.ArgumentParser) -> None:
+    """The expert rule's ``--stopping-delta`` and ``--velocity-source``."""
+    p.add_argument("--stopping-delta", type=float, default=0.1,
+                   help="expert rule (stop_test=absolute, RLBench): still-arm joint velocity; recorded "
+                        "data with an fps (LeRobot) uses the scale-aware test, see --option stopping_fraction")
+    p.add_argument("--velocity-source", choices=("auto", "joint", "ee"), default="auto")
+
+
+def force_arg(p: argparse.ArgumentParser) -> None:
+    """``--force``."""
+    p.add_argument("--force", action="store_true", help="replace an existing output")
+
+
+def reader_help() -> str:
+    """The reader options of every format, for ``--help``."""
+    from rdd.data.lerobot import READER_OPTIONS
+
+    lines = ["reader options (--reader-option KEY=VALUE, VALUE as JSON):",
+             "  rlbench: views=[\"front\",\"wrist\"] (null: every <view>_rgb folder)",
+             "  native: none", "  lerobot:"]
+    lines += [f"    {k}: {v}" for k, v in READER_OPTIONS.items()]
+    return "\n".join(lines)
+
+
+def with_reader_help() -> dict[str, Any]:
+    """``add_parser`` keywords that list the reader options below a subcommand's help."""
+    return {"formatter_class": argparse.RawDescriptionHelpFormatter, "epilog": reader_help()}
