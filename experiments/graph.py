@@ -16,8 +16,9 @@ from typing import Any, TypeVar
 from omegaconf import DictConfig, OmegaConf
 
 from experiments import components as comp
+from experiments.code_keys import code_key, stage_code_key, target_modules
 from experiments.instantiate import instantiate_component, runtime_names
-from experiments.stages import StageCache, read_json, spec_key, stage_code_key, write_json_atomic
+from experiments.stages import StageCache, read_json, spec_key, write_json_atomic
 from experiments.validate import target_callable
 from rdd.data.episode import Episode
 
@@ -104,8 +105,9 @@ class Run:
             except (FileNotFoundError, ImportError, OSError) as exc:
                 name = str(self.cfg.encoder.get("_target_", "?")).removesuffix(".build").rsplit(".", 1)[-1]
                 raise Unavailable(f"encoder {name!r}: {exc}") from exc
-            self._encoder_key = spec_key({"encoder": self.node("encoder"),
-                                          "weights_id": self._encoder.weights_id})
+            node = self.node("encoder")
+            self._encoder_key = spec_key({"encoder": node, "weights_id": self._encoder.weights_id,
+                                          "code": code_key(target_modules(node))})
         return self._encoder
 
     def encoder_key(self) -> str:

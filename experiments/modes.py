@@ -9,6 +9,7 @@ import numpy as np
 
 from experiments import components as comp
 from experiments import planner_stages
+from experiments.code_keys import target_modules
 from experiments.graph import Run, finetunes
 from experiments.instantiate import instantiate_component
 from experiments.result_blocks import decomposition_block, planner_eval_block
@@ -61,6 +62,7 @@ def hierarchical(run: Run, results: dict[str, Any]) -> None:
             loaded["planner"] = make_planner()
         return loaded["planner"], loaded["policy"]
 
+    planner_modules = tuple(target_modules(run.node("planner")))  # the oracle's code has no stage key
     episodes: list[dict[str, Any]] = []
     for task in run.eval_tasks:
         spec = {"planner": planner_key, "policy": policy_key, "env": run.node("env"), "task": task,
@@ -72,7 +74,8 @@ def hierarchical(run: Run, results: dict[str, Any]) -> None:
                             view=view)
             write_json_atomic(tmp / "episodes.json", [r.to_dict() for r in rows])
 
-        path, _ = run.cache.get_or_build("evaluation", spec, build, code=comp.task_sources(task))
+        path, _ = run.cache.get_or_build("evaluation", spec, build, code=comp.task_sources(task),
+                                         modules=planner_modules)
         episodes += read_json(path / "episodes.json")
     per_task = per_task_success(episodes)
     results.update(

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from experiments import components as comp
+from experiments.code_keys import target_modules
 from experiments.graph import Run, each_free_first, finetunes, with_segments
 from experiments.instantiate import instantiate_component
 from experiments.logs import progress
@@ -80,7 +81,8 @@ def base_planner_dir(run: Run) -> tuple[Path, str]:
             "vocabulary": vocab_key}
     return run.cache.get_or_build(
         "planner_base", spec,
-        lambda tmp: comp.pretrain_planner(run.cfg.planner, eps, corpus, tmp, vocab_eps))
+        lambda tmp: comp.pretrain_planner(run.cfg.planner, eps, corpus, tmp, vocab_eps),
+        modules=tuple(target_modules(run.node("planner"))))
 
 
 def planner_stage(run: Run) -> tuple[Path, Path | None, str, dict[str, Any]]:

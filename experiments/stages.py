@@ -1,8 +1,8 @@
 """On-disk stage cache: each pipeline stage's output lives in a directory keyed by what made it.
 
 A stage's key is the SHA-256 of a canonical JSON "spec": the config entries that affect the stage,
-the keys of the stages it consumes, and a fingerprint of the source files that make it
-(``STAGE_CODE``), so changing anything upstream, config or code, changes every key below it.
+the keys of the stages it consumes, and a fingerprint of the source that makes it, derived from its
+imports (``experiments.code_keys``), so changing anything upstream, config or code, changes every key below it.
 Outputs are built in a temporary folder and renamed into place (:func:`rdd.atomic.atomic_dir`), so a
 job killed mid-stage leaves no entry a later job could take for a result. A per-key lock file
 (:class:`experiments.locks.FileLock`: owner host/pid, heartbeat, stale-lock takeover; no ``flock``, so
@@ -13,7 +13,6 @@ the same stage build it once: the others wait and take the finished entry.
 from __future__ import annotations
 
 import contextlib
-import functools
 import hashlib
 import json
 import logging
@@ -24,10 +23,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from experiments.code_keys import stage_code_key
 from experiments.locks import HEARTBEAT_S, STALE_AFTER_S, FileLock
 from rdd.atomic import TargetExistsError, atomic_dir, write_json_atomic
 
-__all__ = ["StageCache", "StageTiming", "canonical", "code_fingerprint", "read_json", "spec_key",
+__all__ = ["StageCache", "StageTiming", "canonical", "read_json", "spec_key",
            "stage_code_key", "write_json_atomic"]
 
 log = logging.getLogger(__name__)
@@ -35,33 +35,6 @@ log = logging.getLogger(__name__)
 # Bump when a stage's on-disk layout or meaning changes, so old entries are not reused.
 CACHE_FORMAT = 1
 SPEC_FILE = "spec.json"
-REPO_ROOT = Path(__file__).resolve().parents[1]
-# envs/ without its task modules: what every task's demos and evaluation share. Each task's own
-# module (envs.tasks.task_sources) joins the key of the stages made per task, so adding or editing
-# one task keeps the others' demos, policy and evaluations.
-ENVS_SHARED = ("envs", "!envs/tasks", "envs/tasks/base.py")
-# The source (files or folders, relative to the repository root) whose code makes each stage; its
-# fingerprint is part of the stage's key. Code a stage reaches only through an upstream stage is
-# covered by that stage's key, which the downstream spec contains.
-STAGE_CODE: dict[str, tuple[str, ...]] = {
-    # The labeler and the expert checker do not make demos: editing them keeps the rendered episodes.
-    "demos": (*ENVS_SHARED, "!envs/labeler.py", "!envs/check_expert.py", "rdd/data"),
-    "expert_labels": ("envs/labeler.py", "rdd/retrieval_labeler.py", "rdd/segments.py",
-                      "rdd/decomposers/expert.py"),
-    "oracle_plans": (*ENVS_SHARED, "rdd/decomposers/expert.py", "rdd/segments.py"),
-    "policy": ("policy", *ENVS_SHARED),
-    "database_part": ("rdd/database.py", "rdd/database_build.py", "rdd/database_store.py", "rdd/encoders",
-                      "rdd/data"),
-    "database": ("rdd/database.py", "rdd/database_build.py", "rdd/database_store.py"),
-    "calibration": ("rdd/database.py", "rdd/database_build.py", "rdd/database_store.py", "rdd/index",
-                    "rdd/encoders", "rdd/data", "rdd/calibrate.py", "rdd/solver.py", "rdd/scoring.py",
-                    "rdd/metrics.py"),
-    "decompositions": ("rdd", "envs/labeler.py", "rdd/retrieval_labeler.py"),
-    "planner_base": ("planner",),
-    "planner_finetune": ("planner",),
-    "evaluation": ("experiments/evaluation.py", *ENVS_SHARED, "policy", "planner"),
-    "planner_eval": ("planner",),
-}
 
 
 def canonical(obj: Any) -> Any:
@@ -84,36 +57,6 @@ def canonical(obj: Any) -> Any:
     if isinstance(obj, float | int | str | bool) or obj is None:
         return obj
     raise TypeError(f"cannot put {type(obj).__name__} into a stage cache key: {obj!r}")
-
-
-@functools.cache
-def code_fingerprint(paths: tuple[str, ...], root: Path = REPO_ROOT) -> str:
-    """SHA-256 (16 hex digits) of the Python sources under ``paths`` (names and contents).
-
-    A path starting with ``!`` leaves that file or folder out of the folders listed; a file listed
-    by name is always in.
-    """
-    h = hashlib.sha256()
-    skip = [root / rel[1:] for rel in paths if rel.startswith("!")]
-    for rel in paths:
-        if rel.startswith("!"):
-            continue
-        base = root / rel
-        if not base.exists():
-            raise FileNotFoundError(f"stage code path {rel!r} is not in {root} (experiments.stages.STAGE_CODE)")
-        files = [base] if base.is_file() else sorted(base.rglob("*.py"))
-        for f in files:
-            if f != base and any(f == s or s in f.parents for s in skip):
-                continue
-            h.update(str(f.relative_to(root)).encode() + b"\0")
-            h.update(f.read_bytes() + b"\0")
-    return h.hexdigest()[:16]
-
-
-def stage_code_key(stage: str, extra: tuple[str, ...] = ()) -> str | None:
-    """Fingerprint of the code that makes ``stage`` plus ``extra`` paths (None without ``STAGE_CODE``)."""
-    paths = STAGE_CODE.get(stage)
-    return None if paths is None else code_fingerprint((*paths, *sorted(extra)))
 
 
 def spec_key(spec: dict[str, Any]) -> str:
@@ -182,15 +125,17 @@ class StageCache:
         timing_name: str | None = None,
         wait: bool = True,
         code: tuple[str, ...] = (),
+        modules: tuple[str, ...] = (),
     ) -> tuple[Path, str] | None:
         """Directory holding ``stage``'s output for ``spec``, calling ``build(tmp_dir)`` on a miss.
 
         Returns ``(directory, key)``. The timing goes to ``self.timings[timing_name or stage]``
         (accumulated when a stage runs several times in one run, e.g. once per task).
         ``wait=False``: None at once when the entry is missing and another job is building it.
-        ``code``: source paths beyond the stage's ``STAGE_CODE`` (e.g. one task's module) in its key.
+        ``code``: source files beyond what the stage's builders import (e.g. one task's modules) in
+        its key; ``modules``: modules it runs that its spec does not name by ``_target_``.
         """
-        fingerprint = stage_code_key(stage, code)
+        fingerprint = stage_code_key(stage, code, spec, modules)
         if fingerprint is not None:
             spec = {**spec, "code": fingerprint}
         key = spec_key(spec)
