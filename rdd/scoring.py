@@ -11,6 +11,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from rdd.milestones import uvd_previous_milestones_all
+
 
 def _as_index_array(x, name: str) -> np.ndarray:
     arr = np.asarray(x)
@@ -111,8 +113,6 @@ def uvd_milestones_per_end(
     Returns a (T,) array (NaN for frames not asked for). All end frames share one Gram matrix and
     one kernel product (``uvd_previous_milestones_all``), equal to one UVD step per end frame.
     """
-    from rdd.decomposers.uvd import uvd_previous_milestones_all  # lazy: keeps scoring import-light
-
     fv = np.asarray(frame_vectors)
     out = np.full(fv.shape[0], np.nan)
     found = uvd_previous_milestones_all(

@@ -12,7 +12,7 @@ programming over the dense score array.
   partition, so it is computed there (``meta["novelty_partition"] == "default"``).
 
 ``G(I) = -|start - UVD(end-1)| / weight(I)`` with one backward UVD step per end frame, computed for
-all end frames at once (``rdd.decomposers.uvd.uvd_previous_milestones_all``).
+all end frames at once (``rdd.milestones.uvd_previous_milestones_all``).
 """
 
 from __future__ import annotations

@@ -12,10 +12,10 @@ from rdd.data.episode import Episode
 from rdd.database import DatabaseError, SubtaskDatabase
 from rdd.decomposers.base import Decomposition
 from rdd.decomposers.rdd import RDDDecomposer
-from rdd.decomposers.uvd import uvd_previous_milestone
 from rdd.demo import SyntheticWorld, build_synthetic_database, run_demo
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import concat_views, episode_frame_vectors
+from rdd.milestones import uvd_previous_milestone
 
 CONF = Path(__file__).resolve().parents[2] / "conf" / "decomposer"
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rdd import scoring
-from rdd.decomposers.uvd import uvd_previous_milestone
+from rdd.milestones import uvd_previous_milestone
 from rdd.solver import max_sum_partition
 
 
