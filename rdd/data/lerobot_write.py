@@ -1,8 +1,7 @@
 """Write sub-tasks back into a copy of a LeRobot dataset (v2.1 or v3.0) as LeRobot's language columns.
 
-The copy keeps every source file byte for byte (hard-linked when the filesystem allows, else
-copied) except the data parquet files, which gain two columns, and ``meta/info.json``, which
-declares them (``{"dtype": "language", "shape": [1], "names": null}``, as
+The copy keeps every source file byte for byte except the data parquet files, which gain two
+columns, and ``meta/info.json``, which declares them (``{"dtype": "language", "shape": [1], "names": null}``, as
 ``lerobot.datasets.language.language_feature_info`` does):
 
 - ``language_persistent``: on every frame of an episode the same list of rows ``{role: "assistant",
@@ -15,6 +14,11 @@ of other styles (plan, memory, ...) of a decomposed episode are kept. Every sour
 unchanged; each episode is one parquet row group, as LeRobot writes them. The copy appears under
 its final name only when complete (:func:`rdd.atomic.atomic_dir`), never replaces an existing
 folder, and is refused inside the source dataset.
+
+The copy never shares storage with its source for a file that a user or a tool may edit in place
+(``meta/`` files, json/jsonl, parquet, READMEs, anything not listed below): those are copied. Only
+encoded media, which tools replace rather than edit (:data:`IMMUTABLE_SUFFIXES`: the videos and
+image frames), are hard-linked when ``link`` is true and the filesystem allows it, else copied.
 """
 
 from __future__ import annotations
@@ -36,6 +40,9 @@ from rdd.segments import Segment, validate_segments
 
 LANGUAGE_FEATURE = {"dtype": "language", "shape": [1], "names": None}
 SUBTASK_STYLE = "subtask"
+# Files the copy may share with the source (hard links): encoded media, rewritten whole or not at
+# all. Everything else is copied, so editing the copy can never edit the source.
+IMMUTABLE_SUFFIXES = frozenset({".mp4", ".mkv", ".webm", ".avi", ".mov", ".png", ".jpg", ".jpeg"})
 
 
 def _message_list_type(with_timestamp: bool):
@@ -153,8 +160,9 @@ def _rewrite_data_file(src: Path, dst: Path, new_rows: Mapping[int, list[dict[st
 
 
 def _link_or_copy(src: Path, dst: Path, link: bool) -> None:
+    """Hard-link ``src`` to ``dst`` when ``link`` and it is immutable media (else, or failing, copy)."""
     dst.parent.mkdir(parents=True, exist_ok=True)
-    if link:
+    if link and src.suffix.lower() in IMMUTABLE_SUFFIXES:
         try:
             os.link(src, dst)
             return
@@ -180,7 +188,8 @@ def write_subtasks(
     link: bool = True,
 ) -> Path:
     """Write OUT, a copy of the dataset at ``source`` whose ``language_persistent`` column carries
-    ``subtasks`` (episode index -> (segments, instructions)); returns OUT."""
+    ``subtasks`` (episode index -> (segments, instructions)); returns OUT. ``link``: hard-link the
+    videos and image frames instead of copying them (every other file is always copied)."""
     _need("pyarrow")
     ds = LeRobotDataset(source)
     src_root, out = ds.root.resolve(), Path(out)

@@ -118,6 +118,28 @@ def test_write_refusals(lerobot_factory, tmp_path):
 
 
 @pytest.mark.parametrize("version", ["v2.1", "v3.0"])
+def test_copy_shares_no_editable_file_with_the_source(lerobot_factory, tmp_path, version):
+    src = lerobot_factory(version)
+    before = {p.relative_to(src): p.read_bytes() for p in src.rglob("*") if p.is_file()}
+    out = write_subtasks(src, tmp_path / "out", {0: ([(0, 30)], ["do it"])})
+    shared = [p.relative_to(out) for p in out.rglob("*")
+              if p.is_file() and (src / p.relative_to(out)).is_file() and p.samefile(src / p.relative_to(out))]
+    assert shared and all(p.suffix == ".mp4" for p in shared)  # only the videos are hard-linked
+    for p in out.rglob("*"):  # edit every non-video file of the copy in place
+        if p.is_file() and p.suffix != ".mp4":
+            with open(p, "ab") as fh:
+                fh.write(b"edited")
+    assert {p.relative_to(src): p.read_bytes() for p in src.rglob("*") if p.is_file()} == before
+
+
+def test_copy_without_links_shares_nothing(lerobot_factory, tmp_path):
+    src = lerobot_factory("v2.1")
+    out = write_subtasks(src, tmp_path / "out", {0: ([(0, 30)], ["do it"])}, link=False)
+    assert not any(p.samefile(src / p.relative_to(out)) for p in out.rglob("*")
+                   if p.is_file() and (src / p.relative_to(out)).is_file())
+
+
+@pytest.mark.parametrize("version", ["v2.1", "v3.0"])
 def test_round_trip_through_the_cli(lerobot_factory, tmp_path, capsys, version):
     src = lerobot_factory(version)
     cache = ["--cache-dir", tmp_path / "cache"]
