@@ -40,8 +40,9 @@ SCALE ?= default
 reproduce: $(STAMP)
 	$(PY) -m experiments.reproduce --scale $(SCALE)
 
-# The RDD core's figures in one run (build-db part on the shared RLBench episodes when present).
-RLBENCH_EPISODES ?= ../shared/data/rlbench/open_drawer/all_variations/episodes
+# The RDD core's figures in one run (its build-db part on real RLBench episodes when RDD_TEST_DATA
+# names a folder holding them: docs/testing.md).
+RLBENCH_EPISODES ?= $(RDD_TEST_DATA)/rlbench/open_drawer/all_variations/episodes
 bench: $(STAMP)
 	$(PY) benchmarks/bench_rdd_core.py $(if $(wildcard $(RLBENCH_EPISODES)),--data $(RLBENCH_EPISODES))
 

@@ -9,9 +9,9 @@ All runs are cold (no embedding cache) on the same episodes and encoder, in one 
 * ``UVD decompose``: a cold UVD decomposition of the same episodes (every frame encoded + UVD),
   the baseline the issue compares build-db to.
 
-Example (the 6 shared RLBench episodes):
+Example (RLBench episodes, e.g. the 6 of open_drawer under ``$RDD_TEST_DATA``, docs/testing.md):
 
-    python benchmarks/bench_build_db.py --data /work/shared/data/rlbench/open_drawer/all_variations/episodes
+    python benchmarks/bench_build_db.py --data $RDD_TEST_DATA/rlbench/open_drawer/all_variations/episodes
 """
 
 from __future__ import annotations

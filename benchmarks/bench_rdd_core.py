@@ -10,9 +10,9 @@ Runs, in one process and one after the other (so the machine state is the same f
    and 1M entries (``--scale-embed-dim``-d frame vectors) per backend with recall@1 against exact.
 
 Prints every figure and the ratios, and writes ``build_db.json``, ``results.json`` and ``summary.md``
-under ``--out``. Example (the 6 shared RLBench episodes):
+under ``--out``. Example (RLBench episodes under ``$RDD_TEST_DATA``, docs/testing.md):
 
-    python benchmarks/bench_rdd_core.py --data ../shared/data/rlbench/open_drawer/all_variations/episodes
+    python benchmarks/bench_rdd_core.py --data $RDD_TEST_DATA/rlbench/open_drawer/all_variations/episodes
 """
 
 from __future__ import annotations

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -12,8 +11,6 @@ from hypothesis import strategies as st
 
 from rdd.data.episode import Episode
 from rdd.decomposers.expert import ExpertDecomposer, keypoint_discovery
-
-DATA = Path(__file__).resolve().parents[2] / "../shared/data/rlbench"
 
 
 def reference(demo, stopping_delta=0.1):
@@ -66,8 +63,8 @@ def test_hand_made_case():
     assert keypoint_discovery(grip, vel) == [5, 10, 15]
 
 
-@pytest.mark.skipif(not DATA.exists(), reason="../shared/data/rlbench is absent")
-def test_real_rlbench_episodes():
+def test_real_rlbench_episodes(real_data):
+    DATA = real_data("rlbench")
     from rdd.data.rlbench import load_episodes
 
     eps = load_episodes(DATA)

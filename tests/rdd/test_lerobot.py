@@ -15,7 +15,6 @@ import pyarrow.parquet as pq  # noqa: E402
 from rdd.data.lerobot import load_episode, load_episodes  # noqa: E402
 from rdd.data.lerobot_dataset import LeRobotDataset  # noqa: E402
 
-G1 = Path(__file__).resolve().parents[2] / "../shared/data/lerobot/unitree_g1_pick_bottle"
 KEY = "observation.images.top"
 FPS = 10
 
@@ -102,8 +101,8 @@ def test_errors(tmp_path):
         load_episode(tmp_path / "d", 0, camera_keys=["observation.images.nope"])
 
 
-@pytest.mark.skipif(not G1.exists(), reason="../shared/data/lerobot is absent")
-def test_real_g1_v21():
+def test_real_g1_v21(real_data):
+    G1 = real_data("lerobot/unitree_g1_pick_bottle")
     ds = LeRobotDataset(G1)
     assert ds.version == "v2.1" and len(ds.episodes) == 100 and ds.present_episodes() == [1, 2]
     with pytest.raises(FileNotFoundError, match="episode 0 is listed.*episode_000000.parquet"):
@@ -123,11 +122,11 @@ def test_real_g1_v21():
     assert f.shape == (2, 48, 64, 3) and f.dtype == np.uint8 and f.std() > 5
 
 
-@pytest.mark.skipif(not G1.exists(), reason="../shared/data/lerobot is absent")
-def test_real_g1_inferred_hands():
+def test_real_g1_inferred_hands(real_data):
     """No options: hands inferred per side from the names (README: left 14-19, right 20-25); the
     right hand closes on the bottle once and opens once, the left rests, so the flag (fraction of
     hands open) changes exactly twice per episode."""
+    G1 = real_data("lerobot/unitree_g1_pick_bottle")
     from rdd.data.lerobot import describe_layout
 
     for e in load_episodes(G1, skip_missing=True):
@@ -170,10 +169,10 @@ def test_names_inference_and_options(tmp_path, caplog):
     assert eps[0].gripper_open.tolist() == [0.0] * 6
 
 
-@pytest.mark.skipif(not G1.exists(), reason="../shared/data/lerobot is absent")
-def test_real_g1_expert_rule_through_the_cli(tmp_path, capsys):
+def test_real_g1_expert_rule_through_the_cli(tmp_path, capsys, real_data):
     """Issue 14's first attempt: gripper_key=observation.state now uses the inferred hand dims, and
     the expert rule does not shatter the episodes (it gave 24-48 five-frame segments)."""
+    G1 = real_data("lerobot/unitree_g1_pick_bottle")
     from rdd.cli import main
 
     out = tmp_path / "expert.json"

@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import pickle
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from rdd.data.rlbench import RestrictedUnpickler, load_episode, load_episodes, restricted_load
-
-DATA = Path(__file__).resolve().parents[2] / "../shared/data/rlbench"
 
 
 class Exploit:
@@ -53,8 +50,8 @@ def test_missing_files_are_named(tmp_path):
         load_episodes(tmp_path)
 
 
-@pytest.mark.skipif(not DATA.exists(), reason="../shared/data/rlbench is absent")
-def test_real_episodes():
+def test_real_episodes(real_data):
+    DATA = real_data("rlbench")
     eps = load_episodes(DATA)
     assert [e.name for e in eps] == [f"episode{i}" for i in range(6)]
     lengths = [e.num_frames for e in eps]
@@ -69,9 +66,9 @@ def test_real_episodes():
         load_episode(DATA / "open_drawer/all_variations/episodes/episode0", views=("overhead",))
 
 
-@pytest.mark.skipif(not DATA.exists(), reason="../shared/data/rlbench is absent")
-def test_symlinked_episode_folders_are_found(tmp_path):
+def test_symlinked_episode_folders_are_found(tmp_path, real_data):
     """Datasets are often linked in: episodes behind symlinked folders load, a link cycle is harmless."""
+    DATA = real_data("rlbench")
     src = DATA / "open_drawer/all_variations/episodes"
     (tmp_path / "mine").mkdir()
     for name in ("episode0", "episode3"):

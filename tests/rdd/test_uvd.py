@@ -168,16 +168,12 @@ def test_all_goals_at_once_equal_one_step_per_goal(seed, length, dim, min_interv
     assert uvd_previous_milestones_all(emb, np.arange(length), **kw) == _per_goal(emb, **kw)
 
 
-def test_all_goals_equal_per_goal_on_real_rlbench_embeddings():
-    from pathlib import Path
-
+def test_all_goals_equal_per_goal_on_real_rlbench_embeddings(real_data):
     from rdd.data.rlbench import load_episodes
     from rdd.encoders import load_encoder
     from rdd.encoders.embed import episode_frame_vectors
 
-    root = Path("/work/shared/data/rlbench/open_drawer/all_variations/episodes")
-    if not root.is_dir():
-        pytest.skip("shared RLBench episodes are not on this machine")
+    root = real_data("rlbench/open_drawer/all_variations/episodes")
     ep = load_episodes(root / "episode0")[0]
     fv = episode_frame_vectors(ep, load_encoder("pixels"), views=("front", "wrist"))
     assert uvd_previous_milestones_all(fv, np.arange(fv.shape[0])) == _per_goal(fv)

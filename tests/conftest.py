@@ -1,0 +1,31 @@
+"""Real demonstration data for the tests that read it: found through ``RDD_TEST_DATA``, else skipped.
+
+``RDD_TEST_DATA`` names a folder laid out as ``rlbench/open_drawer/all_variations/episodes/episodeN``
+(RLBench's own format) and ``lerobot/<dataset>`` (LeRobot v2.1 / v3.0); see docs/testing.md.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+ENV = "RDD_TEST_DATA"
+
+
+@pytest.fixture
+def real_data() -> Callable[[str], Path]:
+    """``real_data("rlbench")``: that path under ``$RDD_TEST_DATA``, or skip the test saying why."""
+
+    def find(rel: str) -> Path:
+        root = os.environ.get(ENV)
+        if not root:
+            pytest.skip(f"real data: set {ENV} to a folder holding {rel}/ (docs/testing.md)")
+        path = Path(root) / rel
+        if not path.exists():
+            pytest.skip(f"real data: {path} is absent ({ENV}={root})")
+        return path
+
+    return find
