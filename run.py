@@ -63,5 +63,10 @@ def _output_dir() -> str:
 
 
 if __name__ == "__main__":
+    if "--help" in sys.argv[1:] or "-h" in sys.argv[1:]:
+        from experiments.run_help import help_text
+
+        print(help_text())
+        sys.exit(0)
     check_launcher(sys.argv[1:])
     main()
