@@ -20,6 +20,7 @@ import numpy as np
 
 from rdd.atomic import write_json_atomic
 from rdd.data.frames import update_with_file
+from rdd.errors import InputError
 
 if TYPE_CHECKING:
     from rdd.database import SubtaskDatabase
@@ -33,7 +34,7 @@ _FRAMES = "frames.npz"
 PER_ENTRY = ("episodes", "tasks", "starts", "ends")
 
 
-class DatabaseError(ValueError):
+class DatabaseError(InputError):
     """A database directory that cannot be used (missing, corrupt or mismatched)."""
 
 

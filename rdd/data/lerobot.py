@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from rdd.data.episode import Episode
+from rdd.data.lerobot_checks import check_finite, check_length, check_timestamps
 from rdd.data.lerobot_dataset import LeRobotDataset, _column, _need
 from rdd.data.lerobot_language import read_subtasks
 from rdd.data.lerobot_layout import feature_names, hand_flags, infer_layout
@@ -129,8 +130,11 @@ def load_episode(
         order = np.argsort(_column(table, "frame_index", data_path), kind="stable")
         table = table.take(order)
     n = table.num_rows
+    where = f"{data_path} (episode {ep})"
+    check_length(n, ds.episodes[ep], where, ds.episode_meta_file.get(ep, ds.root / "meta"))
     if "timestamp" in table.column_names:
         timestamps = _column(table, "timestamp", data_path).astype(np.float64)
+        check_timestamps(timestamps, ds.fps, where, ds.info_path)
     else:
         timestamps = np.arange(n) / ds.fps
     keys = list(ds.video_keys if camera_keys is None else camera_keys)
@@ -151,6 +155,7 @@ def load_episode(
     if state_key in table.column_names:
         state = _column(table, state_key, data_path).astype(np.float64)
         state = state if state.ndim == 2 else state[:, None]
+        check_finite(state, where, state_key)
         if joint_indices is None and state_names is not None and len(state_names) == state.shape[1]:
             arm, _ = infer_layout(state_names)
             if arm and len(arm) < state.shape[1]:
@@ -197,7 +202,9 @@ def load_episode(
     if groups is not None:
         if source_key not in table.column_names:
             raise KeyError(f"{data_path}: no column {source_key!r} (reader option gripper_key)")
-        flags = hand_flags(_column(table, source_key, data_path).astype(np.float64), groups,
+        values = _column(table, source_key, data_path).astype(np.float64)
+        check_finite(values, where, source_key)
+        flags = hand_flags(values, groups,
                            float(gripper_threshold), float(gripper_hysteresis), bool(gripper_open_above),
                            f"{data_path}:{source_key}")
         # With several hands the flag is the fraction of hands open, so any hand's change shows.

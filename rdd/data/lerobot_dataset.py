@@ -14,6 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from rdd.data.lerobot_checks import check_info
+from rdd.errors import InputError
+
 
 def _need(module: str, extra: str = "data"):
     try:
@@ -44,21 +47,25 @@ class LeRobotDataset:
         info_path = self.root / "meta" / "info.json"
         if not info_path.is_file():
             raise FileNotFoundError(f"{self.root} is not a LeRobot dataset: meta/info.json is missing")
+        self.info_path = info_path
         try:
             self.info: dict[str, Any] = json.loads(info_path.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{info_path}: invalid JSON ({exc})") from exc
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"{info_path}: invalid JSON ({exc})") from exc
+        if not isinstance(self.info, dict):
+            raise InputError(f"{info_path}: expected a JSON object, got {type(self.info).__name__}")
         self.version = str(self.info.get("codebase_version", ""))
         if self.version not in ("v2.1", "v3.0"):
-            raise ValueError(
+            raise InputError(
                 f"{info_path}: codebase_version {self.version!r} is not supported (v2.1 or v3.0)"
             )
         for key in ("fps", "features", "data_path"):
             if key not in self.info:
-                raise ValueError(f"{info_path}: field {key!r} is missing")
-        self.fps = float(self.info["fps"])
+                raise InputError(f"{info_path}: field {key!r} is missing")
+        self.fps = check_info(self.info, info_path)
         self.features: dict[str, Any] = self.info["features"]
         self.video_keys = [k for k, f in self.features.items() if f.get("dtype") == "video"]
+        self.episode_meta_file: dict[int, Path] = {}  # where each episode's metadata row was read
         self.episodes = self._read_episode_meta()
         self.tasks = self._read_tasks()
 
@@ -74,8 +81,9 @@ class LeRobotDataset:
                     try:
                         row = json.loads(line)
                         out[int(row["episode_index"])] = row
-                    except (json.JSONDecodeError, KeyError, TypeError) as exc:
-                        raise ValueError(f"{path}:{n}: bad episode record ({exc})") from exc
+                    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+                        raise InputError(f"{path}:{n}: bad episode record ({exc})") from exc
+                    self.episode_meta_file[int(row["episode_index"])] = path
             return out
         _need("pyarrow")
         import pyarrow.parquet as pq
@@ -87,8 +95,9 @@ class LeRobotDataset:
         for f in files:
             for row in pq.read_table(f).to_pylist():
                 if "episode_index" not in row:
-                    raise ValueError(f"{f}: rows lack 'episode_index'")
+                    raise InputError(f"{f}: rows lack 'episode_index'")
                 out[int(row["episode_index"])] = row
+                self.episode_meta_file[int(row["episode_index"])] = f
         return out
 
     def _read_tasks(self) -> dict[int, str]:
@@ -96,8 +105,15 @@ class LeRobotDataset:
             path = self.root / "meta" / "tasks.jsonl"
             if not path.is_file():
                 return {}
-            rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-            return {int(r["task_index"]): str(r["task"]) for r in rows}
+            out = {}
+            for n, line in enumerate(path.read_text().splitlines(), 1):
+                if line.strip():
+                    try:
+                        row = json.loads(line)
+                        out[int(row["task_index"])] = str(row["task"])
+                    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+                        raise InputError(f"{path}:{n}: bad task record ({type(exc).__name__}: {exc})") from exc
+            return out
         import pyarrow.parquet as pq
 
         path = self.root / "meta" / "tasks.parquet"
@@ -117,32 +133,40 @@ class LeRobotDataset:
     def _chunk(self, ep: int) -> int:
         return ep // int(self.info.get("chunks_size", 1000))
 
+    def _meta_number(self, ep: int, field: str, default: float | None = None, integer: bool = True) -> Any:
+        """Numeric field ``field`` of episode ``ep``'s metadata row (InputError naming it otherwise)."""
+        value = self.episodes[ep].get(field, default)
+        ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool) \
+            and np.isfinite(value) and (not integer or float(value).is_integer())
+        if not ok:
+            raise InputError(f"{self.episode_meta_file.get(ep, self.root / 'meta')} (episode {ep}): "
+                             f"field {field!r} is {value!r}; expected {'an integer' if integer else 'a number'}")
+        return int(value) if integer else float(value)
+
+    def _fill(self, field: str, **values: Any) -> Path:
+        """The path template ``info[field]`` filled with ``values``, under the dataset root."""
+        try:
+            return self.root / self.info[field].format(**values)
+        except (KeyError, IndexError, ValueError) as exc:
+            raise InputError(f"{self.info_path}: field {field!r} ({self.info[field]!r}) is not a valid path "
+                             f"template ({type(exc).__name__}: {exc}); it may use {sorted(values)}") from exc
+
     def data_file(self, ep: int) -> Path:
         """The parquet file holding episode ``ep``'s rows."""
-        meta = self.episodes[ep]
         if self.version == "v2.1":
-            rel = self.info["data_path"].format(episode_chunk=self._chunk(ep), episode_index=ep)
-        else:
-            rel = self.info["data_path"].format(
-                chunk_index=int(meta["data/chunk_index"]), file_index=int(meta["data/file_index"])
-            )
-        return self.root / rel
+            return self._fill("data_path", episode_chunk=self._chunk(ep), episode_index=ep)
+        return self._fill("data_path", chunk_index=self._meta_number(ep, "data/chunk_index"),
+                          file_index=self._meta_number(ep, "data/file_index"))
 
     def video_file(self, ep: int, key: str) -> tuple[Path, float]:
         """The mp4 holding ``key`` for episode ``ep`` and the episode's start time in it."""
-        meta = self.episodes[ep]
-        template = self.info.get("video_path")
-        if not template:
-            raise ValueError(f"{self.root / 'meta/info.json'}: field 'video_path' is missing")
+        if not self.info.get("video_path"):
+            raise InputError(f"{self.info_path}: field 'video_path' is missing")
         if self.version == "v2.1":
-            rel = template.format(episode_chunk=self._chunk(ep), video_key=key, episode_index=ep)
-            return self.root / rel, 0.0
-        rel = template.format(
-            video_key=key,
-            chunk_index=int(meta[f"videos/{key}/chunk_index"]),
-            file_index=int(meta[f"videos/{key}/file_index"]),
-        )
-        return self.root / rel, float(meta.get(f"videos/{key}/from_timestamp", 0.0))
+            return self._fill("video_path", episode_chunk=self._chunk(ep), video_key=key, episode_index=ep), 0.0
+        path = self._fill("video_path", video_key=key, chunk_index=self._meta_number(ep, f"videos/{key}/chunk_index"),
+                          file_index=self._meta_number(ep, f"videos/{key}/file_index"))
+        return path, self._meta_number(ep, f"videos/{key}/from_timestamp", 0.0, integer=False)
 
     def present_episodes(self) -> list[int]:
         """Episodes listed in the metadata whose parquet file exists."""

@@ -1,0 +1,14 @@
+"""The library's one error type for bad input: data files, their fields and the options given.
+
+A :class:`InputError` message is one line naming the file (and the episode and field) or the option
+at fault, so a command-line front end prints it as it is, without a traceback. It is a
+``ValueError``, so callers that already catch those keep working.
+"""
+
+from __future__ import annotations
+
+__all__ = ["InputError"]
+
+
+class InputError(ValueError):
+    """Bad input: the one-line message names the file, episode, field or option at fault."""
