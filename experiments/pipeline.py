@@ -110,13 +110,14 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         "status": results["status"],
         "main_metric": main_metric(results),
     }
-    if cfg.print_table:
-        from experiments.results import RunRecord
-        from experiments.tables import build_tables
+    if cfg.print_table and results["status"] == "ok":
+        from experiments.tables import write_tables
 
-        for tables in build_tables([RunRecord(out_dir / RESULTS_FILE, results)]).values():
-            for table in tables:
-                print(table.markdown())
+        md, written = write_tables(out_dir, out_dir / "tables")  # this run's table, LaTeX and plot
+        print(md)
         print(f"results: {out_dir / RESULTS_FILE}")
+        for path in written:
+            if path.suffix == ".png":
+                print(f"plot: {path}")
     return summary
 

@@ -38,7 +38,8 @@ def plot_success(runs: Sequence[RunRecord], path: Path, title: str) -> bool:
             means.append(100 * mean)
             stds.append(100 * std)
         x = np.arange(len(tasks)) + (i - (len(methods) - 1) / 2) * width
-        ax.bar(x, means, width, yerr=stds, label=m, capsize=2)
+        spread = not all(np.isnan(stds))  # one seed has no std bar to draw
+        ax.bar(x, means, width, yerr=np.nan_to_num(stds) if spread else None, label=m, capsize=2)
     ax.set_xticks(np.arange(len(tasks)), [t.replace("_", "\n") for t in tasks], fontsize=7)
     ax.set_ylabel("success (%)")
     ax.set_ylim(0, 105)

@@ -64,7 +64,8 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
             ranks = average_ranks([succ[m][seed][task] for m in present])
             for m, rk in zip(present, ranks, strict=True):
                 rank_sum[m][seed].append(rk)
-    header = ["Method", "Avg. Succ. ↑", "Avg. Rank ↓", *tasks]
+    ranked = len(methods) > 1  # a rank among one method says nothing
+    header = ["Method", "Avg. Succ. ↑", *(["Avg. Rank ↓"] if ranked else []), *tasks]
     rows, avg_means, rank_means = [], [], []
     for m in methods:
         per_seed_avg = [float(np.mean(list(v.values()))) for v in succ[m].values() if v]
@@ -73,7 +74,7 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
         r_mean, r_std = mean_std(per_seed_rank)
         avg_means.append(a_mean)
         rank_means.append(r_mean)
-        row = [m, _pm(a_mean, a_std), _pm(r_mean, r_std, scale=1.0, digits=2)]
+        row = [m, _pm(a_mean, a_std), *([_pm(r_mean, r_std, scale=1.0, digits=2)] if ranked else [])]
         for task in tasks:
             vals = [succ[m][s][task] for s in succ[m] if task in succ[m][s]]
             row.append(_pm(*mean_std(vals)))
@@ -85,13 +86,14 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
         for i in range(len(rows)):
             if avg_means[i] == best_a:
                 bold.add((i, 1))
-            if rank_means[i] == best_r:
+            if ranked and rank_means[i] == best_r:
                 bold.add((i, 2))
     n_eps = sorted({int(v["episodes"]) for r in runs for v in r.data["per_task"].values()})
     note = (
         f"Success rate (%) over {len(seeds)} seed(s) {seeds}, {'/'.join(map(str, n_eps))} "
-        "evaluation episode(s) per task and seed; ± is the sample std over seeds. "
-        "Avg. Rank: methods ranked per task and seed (ties share the mean rank)."
+        "evaluation episode(s) per task and seed"
+        + ("; ± is the sample std over seeds." if len(seeds) > 1 else ".")
+        + (" Avg. Rank: methods ranked per task and seed (ties share the mean rank)." if ranked else "")
     )
     return Table(title, header, rows, bold, note)
 
@@ -160,7 +162,8 @@ def miou_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     bold = {(i, 1) for i, v in enumerate(means) if v == best}
     n_demos = sorted({int(r.data["decomposition"].get("num_demos", 0)) for r in runs})
     note = (f"mIoU (%) of each decomposition against the expert keyframe segmentation on "
-            f"{'/'.join(map(str, n_demos))} validation demonstration(s); ± is the sample std over seeds."
+            f"{'/'.join(map(str, n_demos))} validation demonstration(s)"
+            + ("; ± is the sample std over seeds." if len({s for _, s in by_key}) > 1 else ".")
             + (" s / demo: mean wall time of one decomposition, encoding the demo's frames included"
                " when no earlier job had cached them." if with_time else "")
             + (" novelty Δ: mean ± std over demos of RDD's novelty score (paper Eq. 3.6)." if with_novelty else ""))
@@ -197,7 +200,8 @@ def planner_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     seeds = sorted({r.seed for r in runs})
     deps = sorted({int(r.data["planner_eval"].get("image_dependent_boundaries", 0)) for r in runs})
     note = (f"Exact match (%) of the next instruction at {'/'.join(map(str, counts))} segment starts "
-            f"of held-out test-split episodes; {len(seeds)} seed(s) {seeds}; ± is the sample std over seeds. "
+            f"of held-out test-split episodes; {len(seeds)} seed(s) {seeds}"
+            + ("; ± is the sample std over seeds. " if len(seeds) > 1 else ". ") +
             f"Image-dependent: the {'/'.join(map(str, deps))} of them whose goal and previous instruction "
             "also precede another answer in the same task (only the image can settle them).")
     return Table(title, header, rows, bold, note)

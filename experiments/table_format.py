@@ -10,11 +10,11 @@ import numpy as np
 
 
 def mean_std(values: Sequence[float]) -> tuple[float, float]:
-    """Mean and sample standard deviation (ddof=1; 0 for a single value)."""
+    """Mean and sample standard deviation (ddof=1; NaN for a single value: one seed has no spread)."""
     arr = np.asarray(values, dtype=np.float64)
     if arr.size == 0:
         return math.nan, math.nan
-    return float(arr.mean()), float(arr.std(ddof=1)) if arr.size > 1 else 0.0
+    return float(arr.mean()), float(arr.std(ddof=1)) if arr.size > 1 else math.nan
 
 
 @dataclass
@@ -66,4 +66,6 @@ class Table:
 def _pm(mean: float, std: float, scale: float = 100.0, digits: int = 1) -> str:
     if math.isnan(mean):
         return "–"
+    if math.isnan(std):  # a single value: no ± to show
+        return f"{mean * scale:.{digits}f}"
     return f"{mean * scale:.{digits}f} ± {std * scale:.{digits}f}"

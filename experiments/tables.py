@@ -113,7 +113,9 @@ def write_tables(runs_dir: Path, out_dir: Path | None = None) -> tuple[str, list
             write_text_atomic(path, text)
             written.append(path)
         png = out_dir / f"{exp}_success.png"
-        if plot_success(by_exp[exp], png, f"{exp}: success per task (mean ± std over seeds)"):
+        seeds = len({r.seed for r in by_exp[exp]})
+        what = "mean ± std over seeds" if seeds > 1 else "one seed"
+        if plot_success(by_exp[exp], png, f"{exp}: success per task ({what})"):
             written.append(png)
         png = out_dir / f"{exp}_speed.png"
         if plot_speed(by_exp[exp], png):

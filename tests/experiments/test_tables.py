@@ -37,6 +37,17 @@ def _write_run(root: Path, name: str, method: str, seed: int, success: dict[str,
     path.write_text(json.dumps(data))
 
 
+def test_one_seed_of_one_method_shows_no_spread_and_no_rank(tmp_path: Path):
+    # 3 of 4 episodes succeed on t1, 1 of 4 on t2: 75 and 25, average 50, one seed
+    _write_run(tmp_path, "0", "rdd", 0, {"t1": [True, True, True, False], "t2": [False, True, False, False]})
+    md, written = write_tables(tmp_path, tmp_path / "out")
+    header = next(line for line in md.splitlines() if line.startswith("| Method"))
+    row = next(line for line in md.splitlines() if line.startswith("| rdd") or line.startswith("| **rdd"))
+    assert "Avg. Rank" not in header and "±" not in row
+    assert [c.strip("* ") for c in row.strip("|").split("|")[1:]] == ["50.0", "75.0", "25.0"]
+    assert "sample std" not in md and any(p.suffix == ".png" for p in written)
+
+
 def test_average_ranks_ties_share_mean_rank():
     assert average_ranks([0.5, 0.9, 0.5, 0.1]) == [2.5, 1.0, 2.5, 4.0]
     assert average_ranks([1.0, 1.0, 1.0]) == [2.0, 2.0, 2.0]
@@ -198,8 +209,8 @@ def test_image_dependent_boundaries_and_their_planner_column(tmp_path: Path):
     lines = [line for line in md.splitlines() if line.startswith("| expert")]
     assert "Image-dependent" in md
     # finetuned: 4 of 5 right overall (80.0), 1 of 2 image-dependent (50.0); base 2 of 5, 0 of 2
-    assert lines[0].startswith("| expert | base | 40.0 ± 0.0 | 0.0 ± 0.0 |")
-    assert lines[1].startswith("| expert | finetuned | **80.0 ± 0.0** | 50.0 ± 0.0 |")
+    assert lines[0].startswith("| expert | base | 40.0 | 0.0 |")  # one seed: no spread to show
+    assert lines[1].startswith("| expert | finetuned | **80.0** | 50.0 |")
 
 
 @pytest.mark.parametrize("one", ["1", "1.0"])
