@@ -182,7 +182,7 @@ def main(argv: list[str] | None = None) -> dict:
         # "annoy-batch": the Annoy backend queried in batches, beside the paper's naive per-candidate loop
         backend, options = BACKEND_SPECS["annoy" if name == "annoy-batch" else name]
         t_fit, dec = timed(lambda b=backend, o=options: RDDDecomposer(
-            db, alpha=args.alpha, min_len=args.min_len, max_len=args.max_len, backend=b, backend_options=o))
+            db, alpha=args.alpha, min_len=args.min_len, max_len=args.max_len, index=b, index_options=o))
         repeat = args.repeat if backend == "exact" else 1  # the slow backends once
         t_run, res = timed(lambda d=dec: d.decompose_embeddings(fv), repeat)
         cpu = LAST_CPU["s"]
@@ -198,7 +198,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     if not args.skip_naive:
         if annoy_backend is None:
-            annoy_backend = RDDDecomposer(db, backend="annoy").index
+            annoy_backend = RDDDecomposer(db, index="annoy").index
         limit = args.naive_limit or args.frames
         t_naive, (obj, nsegs, queries) = timed(
             lambda: naive_annoy_loop(fv[:limit], db, annoy_backend._index, args.alpha, args.min_len, args.max_len))
@@ -231,8 +231,8 @@ def main(argv: list[str] | None = None) -> dict:
 
     if args.scaling:
         rows = []
-        dec = RDDDecomposer(db, alpha=args.alpha, min_len=args.min_len, max_len=args.max_len, backend="exact")
-        dec_nolim = RDDDecomposer(db, alpha=args.alpha, min_len=args.min_len, max_len=None, backend="exact")
+        dec = RDDDecomposer(db, alpha=args.alpha, min_len=args.min_len, max_len=args.max_len, index="exact")
+        dec_nolim = RDDDecomposer(db, alpha=args.alpha, min_len=args.min_len, max_len=None, index="exact")
         for t in [int(x) for x in args.scaling.split(",")]:
             f, _ = world.trajectory(t)
             a, _ = timed(lambda d=dec, f=f: d.decompose_embeddings(f))
@@ -297,8 +297,8 @@ def scale_section(world: World, fv: np.ndarray, args) -> list[dict]:
                 continue
             try:
                 t_fit, dec = timed(lambda b=backend, o=options, d=db: RDDDecomposer(
-                    d, alpha=args.alpha, min_len=args.min_len, max_len=args.max_len, backend=b,
-                    backend_options=o))
+                    d, alpha=args.alpha, min_len=args.min_len, max_len=args.max_len, index=b,
+                    index_options=o))
             except ImportError as exc:
                 print(f"  N={n} {name}: skipped ({exc})")
                 continue

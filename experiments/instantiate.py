@@ -4,11 +4,12 @@ A component config is a ``_target_`` node (often ``_partial_: true``) naming the
 that builds the component; its keys are that target's options. Everything else reaches the
 target at its call site, by keyword:
 
-* the run's *runtime objects*, one name each (:data:`RUNTIME_OBJECTS`): ``database`` (the sub-task
-  database of the training episodes), ``encoder`` (the visual encoder) and ``cache`` (the embedding
-  cache). A component takes one by having a parameter of that name, which its config leaves unset;
-  the pipeline passes exactly those (``experiments.pipeline.Run.runtime``). Other components are
-  composed in the config, not passed: ``backend: ${index}`` hands RDD the ``index`` group's choice.
+* the run's *runtime objects*, one name each (:data:`rdd.registry.RUNTIME_OBJECTS`): ``database``
+  (the sub-task database of the training episodes), ``encoder`` (the visual encoder) and ``cache``
+  (the embedding cache). A component takes one by having a parameter of that name, which its config
+  leaves unset; the pipeline passes exactly those (``experiments.graph.Run.runtime``), and
+  :func:`rdd.registry.construct` makes the call, as it does for ``python -m rdd``. Other components
+  are composed in the config, not passed: ``index: ${index}`` hands RDD the ``index`` group's choice.
 * the call site's own arguments (``task=`` for the env, ``plans=`` for the oracle planner).
 
 A parameter without a default that neither the config, the runtime objects nor the call site
@@ -18,34 +19,19 @@ fill fails here, before the target runs, naming the component and the parameter.
 from __future__ import annotations
 
 import functools
-import inspect
 from collections.abc import Iterable, Mapping
 from typing import Any
 
 from omegaconf import DictConfig
 
 from experiments.validate import ConfigError, check_component_node, target_callable
-
-# What each runtime object is (for messages); the names are the only ones a component may use.
-RUNTIME_OBJECTS: dict[str, str] = {
-    "database": "the sub-task database of the training episodes",
-    "encoder": "the run's visual encoder (the encoder group)",
-    "cache": "the on-disk embedding cache",
-}
-
-
-def _parameters(node: DictConfig, group: str) -> Mapping[str, inspect.Parameter]:
-    fn = target_callable(node, group)
-    try:
-        return inspect.signature(fn).parameters
-    except (TypeError, ValueError):
-        return {}
+from rdd import registry
+from rdd.registry import RUNTIME_OBJECTS
 
 
 def runtime_names(node: DictConfig, group: str) -> tuple[str, ...]:
     """The runtime objects the component of ``node`` takes (its parameters named in RUNTIME_OBJECTS)."""
-    params = _parameters(node, group)
-    names = tuple(name for name in RUNTIME_OBJECTS if name in params)
+    names = registry.runtime_names(target_callable(node, group))
     for name in names:
         if node.get(name) is not None:
             raise ConfigError(f"{group}.{name}: `{name}` is a runtime object ({RUNTIME_OBJECTS[name]}) "
@@ -58,15 +44,13 @@ def check_call(node: DictConfig, group: str, given: Iterable[str] = ()) -> None:
 
     ``given`` are the names the call site passes (runtime objects and its own arguments).
     """
-    given = set(given)
-    for name, p in _parameters(node, group).items():
-        if p.kind in (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD) or name == "self":
-            continue
-        if p.default is inspect.Parameter.empty and name not in given and node.get(name) is None:
-            raise ConfigError(
-                f"{group} ({node._target_}): parameter {name!r} is not set by the config and is not a "
-                f"runtime object the run passes (those are {', '.join(RUNTIME_OBJECTS)}: name the "
-                "parameter after one of them, or give it a default)")
+    given = set(given) | {key for key in node if node.get(key) is not None}
+    unset = registry.unset_parameters(target_callable(node, group), given)
+    if unset:
+        raise ConfigError(
+            f"{group} ({node._target_}): parameter {unset[0]!r} is not set by the config and is not a "
+            f"runtime object the run passes (those are {', '.join(RUNTIME_OBJECTS)}: name the "
+            "parameter after one of them, or give it a default)")
 
 
 def component_factory(node: DictConfig, group: str) -> functools.partial:
@@ -88,11 +72,8 @@ def instantiate_component(node: DictConfig, group: str, runtime: Mapping[str, An
     other; ``kwargs`` are the call site's own arguments (they override config values).
     """
     runtime = dict(runtime or {})
-    wanted = runtime_names(node, group)
-    if set(runtime) != set(wanted):
-        raise TypeError(f"{group} ({node._target_}) takes the runtime objects {list(wanted)}, "
-                        f"but the caller passed {sorted(runtime)}")
+    runtime_names(node, group)  # a runtime object set in the config fails here, naming the key
     check_call(node, group, [*runtime, *kwargs])
     # A partial from the config, called with the runtime objects: they never pass through
     # OmegaConf (which would copy or reject them).
-    return component_factory(node, group)(**runtime, **kwargs)
+    return registry.construct(component_factory(node, group), runtime, f"{group} ({node._target_})", **kwargs)

@@ -92,14 +92,14 @@ def _points(grid: dict[str, list]) -> list[dict[str, Any]]:
     return pts
 
 
-def _held_out_scores(db: SubtaskDatabase, held: str, points: list[dict[str, Any]], backend: str,
-                     backend_options: Mapping[str, Any]) -> list[float]:
+def _held_out_scores(db: SubtaskDatabase, held: str, points: list[dict[str, Any]], index: str,
+                     index_options: Mapping[str, Any]) -> list[float]:
     """mIoU of decomposing ``held`` with the rest of the database, for every grid point."""
     fv = db.frames[held]
     gt = db.episode_segments(held)
     t = fv.shape[0]
     keep = np.array([n != held for n in db.episodes])
-    index = load_index(backend, **dict(backend_options)).fit(db.begin[keep], db.end[keep])
+    nearest = load_index(index, **dict(index_options)).fit(db.begin[keep], db.end[keep])
     durations = db.durations[keep]
     lo = min(p["min_len"] for p in points)
     hi = max(t if p["max_len"] is None else min(p["max_len"], t) for p in points)
@@ -108,7 +108,7 @@ def _held_out_scores(db: SubtaskDatabase, held: str, points: list[dict[str, Any]
     hi = max(hi, lo)
     starts, ends, valid = candidate_intervals(t, lo, hi)
     s, e = starts[valid], ends[valid]
-    ids, dist = index.search_intervals(fv, s, e)
+    ids, dist = nearest.search_intervals(fv, s, e)
     qdur, ndur = scoring.durations(s, e), durations[ids]
     length = scoring.length_term(qdur, ndur)
     weight = scoring.weights(s, e)
@@ -134,8 +134,8 @@ def calibrate(
     grid: Mapping[str, Sequence] | None = None,
     sample: int = DEFAULT_SAMPLE,
     seed: int = 0,
-    backend: str = "exact",
-    backend_options: Mapping[str, Any] | None = None,
+    index: str = "exact",
+    index_options: Mapping[str, Any] | None = None,
     progress=None,
 ) -> dict[str, Any] | None:
     """Leave-one-episode-out calibration of alpha/min_len/max_len; the record for the manifest.
@@ -163,7 +163,7 @@ def calibrate(
     points = _points(grid)
     per_episode = []
     for name in (progress(held) if progress is not None else held):
-        per_episode.append(_held_out_scores(db, name, points, backend, backend_options or {}))
+        per_episode.append(_held_out_scores(db, name, points, index, index_options or {}))
     scores = np.asarray(per_episode)  # (episodes, points)
     means = scores.mean(axis=0)
     best = float(means.max())
@@ -180,7 +180,7 @@ def calibrate(
         "episodes": held,
         "sample": int(sample),
         "seed": int(seed),
-        "backend": backend,
+        "backend": index,  # the manifest key saved databases have (the index by its older name)
         "grid": grid,
         "results": [{**p, "miou": float(means[i]), "per_episode": [float(x) for x in scores[:, i]]}
                     for i, p in enumerate(points)],

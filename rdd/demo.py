@@ -122,7 +122,7 @@ def _report(title: str, truth: list[Segment], result) -> dict:
     return errors
 
 
-def run_demo(seed: int = 0, demos_per_task: int = 5, backend: str = "exact", verbose: bool = True) -> dict:
+def run_demo(seed: int = 0, demos_per_task: int = 5, index: str = "exact", verbose: bool = True) -> dict:
     """Build a synthetic database, decompose two new demonstrations, print and return the comparison.
 
     The first is assembled from copies of database sub-tasks in a new order (RDD must recover it
@@ -133,7 +133,7 @@ def run_demo(seed: int = 0, demos_per_task: int = 5, backend: str = "exact", ver
     rng = np.random.default_rng(seed)
     world = SyntheticWorld.make(seed=seed)
     db, demos = build_synthetic_database(world, demos_per_task, rng)
-    decomposer = RDDDecomposer(db, alpha=1.0, min_len=2, max_len=60, backend=backend)
+    decomposer = RDDDecomposer(db, alpha=1.0, min_len=2, max_len=60, index=index)
     tasks = sorted(world.waypoints)
     picks = []
     for _ in range(4):
@@ -146,8 +146,9 @@ def run_demo(seed: int = 0, demos_per_task: int = 5, backend: str = "exact", ver
     fv_f, truth_f = world.demo(task, rng)
     res_f = decomposer.decompose_embeddings(fv_f)
     if verbose:
+        # "backend": the summary's word for the index since its first version (scripts compare it)
         print(f"RDD demo: {len(db)} database sub-tasks from {demos_per_task} demos x {len(tasks)} "
-              f"synthetic tasks, {db.frame_dim}-d frame vectors (2 views), backend {backend}")
+              f"synthetic tasks, {db.frame_dim}-d frame vectors (2 views), backend {index}")
     err_a = _report(f"[1] {fv_a.shape[0]} frames assembled from database sub-tasks {names}",
                     truth_a, res_a) if verbose else boundary_errors(res_a.segments, truth_a)
     err_f = _report(f"[2] a fresh {task} demonstration of {fv_f.shape[0]} frames (new noise and lengths)",
@@ -163,7 +164,8 @@ def run_demo(seed: int = 0, demos_per_task: int = 5, backend: str = "exact", ver
         }
 
     return {
-        "database_entries": len(db), "backend": backend,
+        # "backend": the summary's key for the index since its first version (scripts read it)
+        "database_entries": len(db), "backend": index,
         "assembled": summary(fv_a, truth_a, res_a, err_a),
         "fresh": {"task": task, **summary(fv_f, truth_f, res_f, err_f)},
     }

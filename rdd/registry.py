@@ -1,4 +1,4 @@
-"""The one registry of swappable rdd components, read by the CLI and by the harness's Hydra configs.
+"""The one registry of swappable rdd components and the one way to build them, for the CLI and the harness.
 
 A component is found by convention, with no central table: the decomposer ``NAME`` is the
 :class:`~rdd.decomposers.base.Decomposer` subclass defined in module ``rdd.decomposers.NAME``, the
@@ -7,6 +7,11 @@ encoder ``NAME`` is the ``build(**options)`` factory of module ``rdd.encoders.NA
 one module (plus, for the harness, one ``conf/<group>/<option>.yaml`` whose ``_target_`` is
 :func:`target` of it). ``python -m rdd`` builds ``--decomposer NAME`` / ``--encoder NAME`` through
 :func:`component`, and a Hydra option's ``_target_`` names the same object, so the two cannot drift.
+
+A component is called with its options (keyword arguments: the CLI's ``--option``, a config's keys)
+and the *runtime objects* it takes (:data:`RUNTIME_OBJECTS`): what exists only once a run has made
+it, each under one name, passed to exactly the components with a parameter of that name
+(:func:`construct`; the harness's ``experiments.instantiate`` and the CLI both call it).
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import importlib
 import inspect
 import pkgutil
 import re
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 # group -> (package, what the module contributes: "class" = the subclass of ``base`` it defines,
@@ -27,6 +33,12 @@ GROUPS: dict[str, tuple[str, str, str]] = {
 # Modules of those packages that hold shared code, not a component.
 _NOT_COMPONENTS = {"base", "embed", "cache"}
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
+# What a run makes at run time and hands to the components that take it, one name each.
+RUNTIME_OBJECTS: dict[str, str] = {
+    "database": "the sub-task database (of the training episodes)",
+    "encoder": "the visual encoder",
+    "cache": "the on-disk embedding cache",
+}
 
 
 def _group(group: str) -> tuple[str, str, type]:
@@ -87,13 +99,54 @@ def name_of(group: str, dotted: str) -> str | None:
         return None
 
 
-def build_from_module(package: str, name: str, base: type, available: list[str], options: dict[str, Any]) -> Any:
-    """Import ``package.name``, call its ``build(**options)`` and check the result is a ``base``."""
-    module = importlib.import_module(f"{package}.{name}")
-    build = getattr(module, "build", None)
-    if not callable(build):
-        raise ValueError(f"module {package}.{name} has no build(); available: {available}")
-    built = build(**options)
+def build(group: str, name: str, **options: Any) -> Any:
+    """The component ``name`` of ``group`` built with ``options`` (it takes no runtime object)."""
+    built = construct(component(group, name), {}, target(group, name), **options)
+    base = _group(group)[2]
     if not isinstance(built, base):
-        raise TypeError(f"{package}.{name}.build returned {type(built).__name__}, not {base.__name__}")
+        raise TypeError(f"{target(group, name)} returned {type(built).__name__}, not {base.__name__}")
     return built
+
+
+def parameters(fn: Any) -> dict[str, inspect.Parameter]:
+    """The parameters a caller may pass ``fn`` by keyword (a class: its constructor's)."""
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):  # a builtin without a signature: nothing to check against
+        return {}
+    return {n: p for n, p in params.items()
+            if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)}
+
+
+def runtime_names(fn: Any) -> tuple[str, ...]:
+    """The runtime objects ``fn`` takes: its parameters named in :data:`RUNTIME_OBJECTS`."""
+    params = parameters(fn)
+    return tuple(name for name in RUNTIME_OBJECTS if name in params)
+
+
+def unset_parameters(fn: Any, given: Iterable[str]) -> list[str]:
+    """Parameters of ``fn`` without a default that ``given`` (the names a caller will pass) leaves out."""
+    given = set(given)
+    return [name for name, p in parameters(fn).items()
+            if p.default is inspect.Parameter.empty and name not in given]
+
+
+def check_option_names(group: str, fn: Any, options: Mapping[str, Any], reserved: Sequence[str] = ()) -> None:
+    """Reject keys of ``options`` that ``fn`` does not take (``reserved``: set by the caller, not an option)."""
+    accepted = [p for p in parameters(fn) if p not in reserved]
+    unknown = sorted(set(options) - set(accepted))
+    if unknown:
+        owner = getattr(fn, "name", getattr(fn, "__name__", str(fn)))
+        raise ValueError(f"{group} {owner}: unknown option(s) {unknown}; accepted: {', '.join(accepted)}")
+
+
+def construct(fn: Any, runtime: Mapping[str, Any], owner: str, **options: Any) -> Any:
+    """Call the component ``fn`` with ``options`` and exactly the runtime objects it takes.
+
+    ``runtime`` must hold every runtime object ``fn`` takes (:func:`runtime_names`) and no other;
+    ``owner`` names the component in that error.
+    """
+    wanted = runtime_names(fn)
+    if set(runtime) != set(wanted):
+        raise TypeError(f"{owner} takes the runtime objects {list(wanted)}, but the caller passed {sorted(runtime)}")
+    return fn(**runtime, **options)

@@ -39,7 +39,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if values is not None:
             grid[key] = values
     try:
-        cal = calibrate(db, grid=grid, sample=args.sample, seed=args.seed, backend=args.backend,
+        cal = calibrate(db, grid=grid, sample=args.sample, seed=args.seed, index=args.index,
                         progress=lambda xs: progress(xs, "calibration"))
     except CalibrationError as exc:
         raise CLIError(f"--db {args.db}: {exc}") from exc
@@ -63,5 +63,7 @@ def add_parser(sub) -> None:
                    "(default none and 1.25x, 2x the longest stored segment)")
     p.add_argument("--sample", type=int, default=10, help="episodes held out in turn (default 10)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--backend", default="exact", help="retrieval backend for calibration")
+    # --backend: the flag's name before the index was called `index` everywhere; scripts use it
+    p.add_argument("--index", "--backend", dest="index", default="exact",
+                   help="retrieval index for calibration: exact, annoy or faiss")
     p.set_defaults(func=cmd_calibrate)

@@ -1,105 +1,132 @@
-"""The components a subcommand builds from its options: decomposers by name, as the registry has them."""
+"""Decomposers built from a subcommand's options, through the registry and constructor the harness uses.
+
+``--decomposer NAME`` is ``rdd.registry.component("decomposer", NAME)``, the class a harness config's
+``_target_`` names, and :func:`rdd.registry.construct` calls it as the harness does: ``--option``
+pairs and the flags that name its parameters are its keyword arguments, and it gets the runtime
+objects it takes (``database`` from ``--db``, ``encoder`` from ``--encoder``, ``cache`` from
+``--cache-dir``). Which of these apply follows from the constructor's parameters, not its name.
+"""
 
 from __future__ import annotations
 
 import argparse
-import inspect
+from collections.abc import Mapping
 from typing import Any
 
 from rdd.cli.common import CLIError, make_cache, make_encoder, parse_options, resolve_views
 from rdd.data.episode import Episode
+from rdd.decomposers.base import Decomposer
 from rdd.encoders.embed import DEFAULT_VIEWS
-from rdd.registry import available, component
+from rdd.registry import (
+    RUNTIME_OBJECTS,
+    available,
+    check_option_names,
+    component,
+    construct,
+    parameters,
+    runtime_names,
+)
 
 # The registry's decomposers (rdd.registry: one module each in rdd/decomposers/), the same the
 # harness's conf/decomposer/*.yaml name as _target_.
 DECOMPOSERS = tuple(available("decomposer"))
+# Parameters the CLI fills itself (from --db, --encoder, --views, --no-calibration), never --option.
+SET_BY_CLI = (*RUNTIME_OBJECTS, "views", "use_calibration")
+# Flags that are decomposer parameters. These have defaults, so an --option of the same name wins...
+FLAG_DEFAULTS = ("stopping_delta", "velocity_source")
+# ...while these are unset unless typed, and when typed they win over --option.
+FLAG_OVERRIDES = ("alpha", "max_len")
+# --option names from before the retrieval index was called `index` everywhere (scripts pass
+# --option backend=annoy); they apply to a decomposer that takes the new name and not the old.
+OPTION_ALIASES = {"backend": "index", "backend_options": "index_options"}
+DEFAULT_ENCODER = "effnet_lite0"  # uvd's encoder without --encoder (rdd: the database's)
 
 
-def expert_decomposer(args: argparse.Namespace, options: dict[str, Any] | None = None):
-    """The expert rule with ``--stopping-delta``/``--velocity-source`` and any ``--option``."""
-    from rdd.decomposers.base import check_option_names
+def keyword_names(options: Mapping[str, Any], params: Mapping[str, Any]) -> dict[str, Any]:
+    """``options`` under the parameter names of the decomposer (OPTION_ALIASES resolved)."""
+    out = {}
+    for key, value in options.items():
+        new = OPTION_ALIASES.get(key)
+        out[new if new in params and key not in params else key] = value
+    return out
 
-    ExpertDecomposer = component("decomposer", "expert")
-    options = dict(options or {})
-    options.setdefault("stopping_delta", args.stopping_delta)
-    options.setdefault("velocity_source", args.velocity_source)
+
+def build_decomposer(name: str, options: Mapping[str, Any], args: argparse.Namespace,
+                     first: Episode | None = None) -> tuple[Decomposer, dict[str, Any]]:
+    """The decomposer ``name`` with ``options`` and the flags of ``args``; also what to record of it.
+
+    ``first``: an episode of the data, whose views an encoder embeds when no database fixes them.
+    """
+    cls = component("decomposer", name)
+    params = parameters(cls)
+    takes = runtime_names(cls)
+    defaults = {k: getattr(args, k) for k in FLAG_DEFAULTS if k in params}
+    kwargs = {**defaults, **keyword_names(options, params)}
+    kwargs.update({k: getattr(args, k) for k in FLAG_OVERRIDES
+                   if k in params and getattr(args, k, None) is not None})
+    if "database" in takes and not getattr(args, "db", None):
+        raise CLIError(f"--decomposer {name} needs --db DIR (build one with `python -m rdd build-db`)")
+    check_option_names("decomposer", cls, kwargs, reserved=SET_BY_CLI)
+    runtime: dict[str, Any] = {}
+    db = None
+    if "cache" in takes:
+        runtime["cache"] = make_cache(args)
+    if "database" in takes:
+        from rdd.database import SubtaskDatabase
+
+        db = runtime["database"] = SubtaskDatabase.load(args.db)
+        if "use_calibration" in params:
+            # The database's calibrated alpha/min_len/max_len unless given here (or --no-calibration).
+            kwargs["use_calibration"] = bool(db.meta.get("calibration")) and not args.no_calibration
+    if "views" in params:
+        if db is not None:  # the views the database's entries were embedded with
+            kwargs["views"] = tuple(args.views) if args.views else tuple(db.meta.get("views") or DEFAULT_VIEWS)
+        elif "encoder" in takes:  # what the encoder will embed: the episodes' views
+            kwargs["views"] = resolve_views(args.views, first)
+        else:
+            kwargs["views"] = args.views or None
+    if "encoder" in takes:
+        enc_name = args.encoder or (db.meta.get("encoder") if db is not None else DEFAULT_ENCODER)
+        if not enc_name:
+            raise CLIError(f"--db {args.db} records no encoder; pass --encoder")
+        runtime["encoder"] = make_encoder(enc_name, parse_options(args.encoder_option, "--encoder-option"))
+    decomposer = construct(cls, runtime, f"decomposer {name}", **kwargs)
+    config: dict[str, Any] = dict(defaults)
+    if "encoder" in runtime:
+        encoder = runtime["encoder"]
+        config.update(encoder=encoder.name, weights_id=encoder.weights_id, views=list(kwargs["views"]))
+    if db is not None:
+        config.update(db=str(args.db), db_fingerprint=db.fingerprint(), db_size=len(db))
+    # The output names the index "backend", as it has since its first version (readers know that key).
+    config.update({("backend" if k == "index" else k): v for k, v in decomposer.settings().items()})
+    return decomposer, config
+
+
+def expert_decomposer(args: argparse.Namespace) -> Decomposer:
+    """The expert rule with ``--stopping-delta`` / ``--velocity-source`` (``build-db``'s segmenter)."""
     try:
-        check_option_names(ExpertDecomposer, options)
-        return ExpertDecomposer(**options)
+        return build_decomposer("expert", {}, args)[0]
     except ValueError as exc:
         raise CLIError(f"--option: {exc}") from exc
 
 
-def make_decomposer(args: argparse.Namespace, first: Episode):
+def make_decomposer(args: argparse.Namespace, first: Episode) -> tuple[Decomposer, dict[str, Any]]:
     """The decomposer named by ``--decomposer`` with its options; also the config to record."""
-    from rdd.decomposers.base import check_option_names
-
-    options = parse_options(args.option, "--option")
-    config: dict[str, Any] = {"decomposer": args.decomposer, "options": options}
     name = args.decomposer
+    options = parse_options(args.option, "--option")
     try:
-        if name == "expert":
-            config.update(stopping_delta=args.stopping_delta, velocity_source=args.velocity_source)
-            return expert_decomposer(args, options), config
-        if name == "uniform":
-            UniformDecomposer = component("decomposer", "uniform")
-            check_option_names(UniformDecomposer, options)
-            return UniformDecomposer(**options), config
-        if name == "vlm":
-            VLMDecomposer = component("decomposer", "vlm")
-            check_option_names(VLMDecomposer, options, reserved=("views",))
-            return VLMDecomposer(views=args.views or None, **options), config
-        cache = make_cache(args)
-        if name == "uvd":
-            UVDDecomposer = component("decomposer", "uvd")
-            check_option_names(UVDDecomposer, options, reserved=("encoder", "views", "cache"))
-            views = resolve_views(args.views, first)
-            encoder = make_encoder(args.encoder or "effnet_lite0",
-                                   parse_options(args.encoder_option, "--encoder-option"))
-            config.update(encoder=encoder.name, weights_id=encoder.weights_id, views=list(views))
-            return UVDDecomposer(encoder=encoder, views=views, cache=cache, **options), config
-        if name == "rdd":
-            from rdd.database import SubtaskDatabase
-
-            RDDDecomposer = component("decomposer", "rdd")
-            if not args.db:
-                raise CLIError("--decomposer rdd needs --db DIR (build one with `python -m rdd build-db`)")
-            check_option_names(RDDDecomposer, options, reserved=("database", "encoder", "views", "cache"))
-            db = SubtaskDatabase.load(args.db)
-            enc_name = args.encoder or db.meta.get("encoder")
-            if not enc_name:
-                raise CLIError(f"--db {args.db} records no encoder; pass --encoder")
-            encoder = make_encoder(enc_name, parse_options(args.encoder_option, "--encoder-option"))
-            views = tuple(args.views) if args.views else tuple(db.meta.get("views") or DEFAULT_VIEWS)
-            kwargs = dict(options)
-            if args.alpha is not None:
-                kwargs["alpha"] = args.alpha
-            if args.max_len is not None:
-                kwargs["max_len"] = args.max_len
-            # The database's calibrated alpha/min_len/max_len unless given here (or --no-calibration).
-            calibrated = bool(db.meta.get("calibration")) and not args.no_calibration
-            dec = RDDDecomposer(db, encoder=encoder, views=views, cache=cache,
-                                use_calibration=calibrated, **kwargs)
-            config.update(encoder=encoder.name, weights_id=encoder.weights_id, views=list(views),
-                          db=str(args.db), db_fingerprint=db.fingerprint(), db_size=len(db),
-                          alpha=dec.alpha, min_len=dec.min_len, max_len=dec.max_len, mode=dec.mode,
-                          beta=dec.beta, backend=dec.index.name, option_source=dec.option_source)
-            return dec, config
+        decomposer, config = build_decomposer(name, options, args, first)
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ValueError) and "option" not in str(exc) and "must be" not in str(exc):
             raise
         raise CLIError(f"--option for --decomposer {name}: {exc}") from exc
-    raise CLIError(f"--decomposer {name!r}: choose one of {', '.join(DECOMPOSERS)}")
+    return decomposer, {"decomposer": name, "options": options, **config}
 
 
 def decomposer_help() -> str:
     """Each decomposer's ``--option`` keys and defaults, read from its constructor."""
     lines = ["decomposer options (--option KEY=VALUE):"]
-    reserved = {"self", "database", "encoder", "views", "cache"}
     for name in DECOMPOSERS:
-        init = component("decomposer", name).__init__
-        params = [p for p in inspect.signature(init).parameters.values()
-                  if p.name not in reserved and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+        params = [p for p in parameters(component("decomposer", name)).values() if p.name not in SET_BY_CLI]
         lines.append(f"  {name}: " + ", ".join(f"{p.name}={p.default!r}" for p in params))
     return "\n".join(lines)

@@ -16,7 +16,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     except ImportError as exc:
         raise CLIError(f"demo: rdd.demo is not available ({exc})") from exc
     check_output(args.json, "--json", args.force)
-    result = run_demo(seed=args.seed, backend=args.backend)  # prints its own summary
+    result = run_demo(seed=args.seed, index=args.index)  # prints its own summary
     if args.json:
         write_json_atomic(args.json, json.loads(json.dumps(result, default=str)), overwrite=args.force)
         print(f"wrote {args.json}")
@@ -27,7 +27,8 @@ def add_parser(sub) -> None:
     """The ``demo`` subcommand and its options."""
     p = sub.add_parser("demo", help="run the end-to-end demo")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--backend", default="exact", help="retrieval backend: exact, annoy or faiss")
+    # --backend: the flag's name before the index was called `index` everywhere; scripts use it
+    p.add_argument("--index", "--backend", dest="index", default="exact", help="retrieval index: exact, annoy or faiss")
     p.add_argument("--json", help="also write the demo's summary here")
     force_arg(p)
     p.set_defaults(func=cmd_demo)

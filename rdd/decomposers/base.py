@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import inspect
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,6 +36,10 @@ class Decomposer(ABC):
     @abstractmethod
     def decompose(self, episode: Episode) -> Decomposition:
         """Segment ``episode``."""
+
+    def settings(self) -> dict[str, Any]:
+        """Options in force that its arguments did not fix (RDD: chosen by calibration); none here."""
+        return {}
 
 
 # ----------------------------------------------------------------------------- option checks
@@ -76,14 +79,3 @@ def check_choice(owner: str, name: str, value: Any, choices: Sequence[Any]) -> A
     if value not in choices:
         raise ValueError(f"{owner}: option {name} must be one of {list(choices)}, got {value!r}")
     return value
-
-
-def check_option_names(cls: type, options: Mapping[str, Any], reserved: Sequence[str] = ()) -> None:
-    """Reject keys of ``options`` that ``cls.__init__`` does not take (``reserved`` are set by the caller)."""
-    params = inspect.signature(cls.__init__).parameters
-    accepted = [p for p in params if p != "self" and params[p].kind in (
-        inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY) and p not in reserved]
-    unknown = sorted(set(options) - set(accepted))
-    if unknown:
-        owner = getattr(cls, "name", cls.__name__)
-        raise ValueError(f"decomposer {owner}: unknown option(s) {unknown}; accepted: {', '.join(accepted)}")

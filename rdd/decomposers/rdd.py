@@ -66,9 +66,9 @@ class RDDDecomposer(Decomposer):
         mode: str = "default",
         min_len: int = UNSET,
         max_len: int | None = UNSET,
-        backend: str | NearestIndex = "exact",
+        index: str | NearestIndex = "exact",
         views: Sequence[str] = DEFAULT_VIEWS,
-        backend_options: Mapping[str, Any] | None = None,
+        index_options: Mapping[str, Any] | None = None,
         uvd_options: Mapping[str, Any] | None = None,
         cache=None,
         use_calibration: bool = False,
@@ -101,18 +101,23 @@ class RDDDecomposer(Decomposer):
         self.cache = cache
         if encoder is not None:
             database.check_compatible(encoder, self.views)
-        if isinstance(backend, NearestIndex):
-            if backend_options:
-                raise ValueError("backend_options apply only when backend is given by name")
-            self.index = backend
-        elif isinstance(backend, str):
-            self.index = load_index(backend, **dict(backend_options or {}))
+        if isinstance(index, NearestIndex):
+            if index_options:
+                raise ValueError("index_options apply only when index is given by name")
+            self.index = index
+        elif isinstance(index, str):
+            self.index = load_index(index, **dict(index_options or {}))
         else:
-            raise TypeError(f"backend must be a backend name or a NearestIndex, got {type(backend).__name__}")
+            raise TypeError(f"index must be an index name or a NearestIndex, got {type(index).__name__}")
         self.index.fit(
             database.begin, database.end, cache_dir=database.directory,
             key=database.fingerprint() if database.directory is not None else None,
         )
+
+    def settings(self) -> dict[str, Any]:
+        """The options in force (given, calibrated or the paper's: ``option_source`` says which) and the index."""
+        return {"alpha": self.alpha, "min_len": self.min_len, "max_len": self.max_len, "mode": self.mode,
+                "beta": self.beta, "index": self.index.name, "option_source": dict(self.option_source)}
 
     def decompose(self, episode: Episode) -> Decomposition:
         """Embed ``episode`` with the encoder and decompose it."""
@@ -165,10 +170,7 @@ class RDDDecomposer(Decomposer):
         sim = scoring.default_similarity(
             dist, scoring.durations(s, e), self.database.durations[ids], self.alpha
         )
-        meta: dict[str, Any] = {"mode": self.mode, "backend": self.index.name,
-                                "num_candidates": int(s.size), "alpha": self.alpha,
-                                "beta": self.beta, "min_len": self.min_len, "max_len": self.max_len,
-                                "option_source": dict(self.option_source)}
+        meta: dict[str, Any] = {**self.settings(), "num_candidates": int(s.size)}
         if self.mode == "ood" or self.beta == 0:
             # Standard RDD (Eq. 3.4): the partition whose mean score is the novelty Delta.
             j = scoring.interval_scores(sim, s, e)

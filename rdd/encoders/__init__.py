@@ -9,7 +9,7 @@ architectures; ``base``, ``embed`` and ``cache`` are not encoders.
 from __future__ import annotations
 
 from rdd.encoders.base import Encoder
-from rdd.registry import available, component
+from rdd.registry import available, build
 
 
 def available_encoders() -> list[str]:
@@ -19,10 +19,7 @@ def available_encoders() -> list[str]:
 
 def load_encoder(name: str, **options) -> Encoder:
     """Build the encoder ``name`` (module ``rdd.encoders.<name>``, its ``build``) with ``options``."""
-    enc = component("encoder", name)(**options)
-    if not isinstance(enc, Encoder):
-        raise TypeError(f"rdd.encoders.{name}.build returned {type(enc).__name__}, not Encoder")
-    return enc
+    return build("encoder", name, **options)
 
 
 __all__ = ["Encoder", "available_encoders", "load_encoder"]

@@ -1,4 +1,4 @@
-"""Certified bounds for the exact backend: spherical caps around clusters of begin and end vectors.
+"""Certified bounds for the exact index: spherical caps around clusters of begin and end vectors.
 
 Every entry's begin vector lies in a begin cluster: a unit centre ``c`` with every member's direction
 within angle ``theta`` of it and its length in ``[n_min, n_max]``. For a frame ``f`` at angle ``psi`` to

@@ -1,4 +1,4 @@
-"""Annoy backend (the paper's setting): angular metric, ``n_trees`` random-projection trees.
+"""Annoy index (the paper's setting): angular metric, ``n_trees`` random-projection trees.
 
 Annoy's angular distance is ``sqrt(2 (1 - cos))``, the project's distance. With ``search_k=-1`` a
 query inspects ``n_trees * N`` nodes (all trees). Queries run one at a time (Annoy has no batch call).
@@ -20,12 +20,12 @@ def _require_annoy():
         from annoy import AnnoyIndex
     except ImportError as exc:  # optional extra
         raise ImportError(
-            "the annoy backend needs the 'annoy' package: pip install 'rdd-harness[index]'"
+            "the annoy index needs the 'annoy' package: pip install 'rdd-harness[index]'"
         ) from exc
     return AnnoyIndex
 
 
-class AnnoyBackend(NearestIndex):
+class AnnoyIndex(NearestIndex):
     """Approximate nearest neighbours with Annoy; the built forest is saved beside the database."""
 
     name = "annoy"
@@ -77,8 +77,3 @@ class AnnoyBackend(NearestIndex):
                                                         include_distances=True)
             ids[i], dists[i] = found[0], dist[0]
         return ids, dists
-
-
-def build(**options) -> AnnoyBackend:
-    """The annoy backend with ``options`` (n_trees, search_k, seed)."""
-    return AnnoyBackend(**options)

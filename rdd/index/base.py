@@ -38,8 +38,8 @@ class NearestIndex(ABC):
     ) -> NearestIndex:
         """Index the entries' begin and end frame vectors (N, D) each; return self.
 
-        ``cache_dir``/``key``: where a backend may save its built index (beside the database) and the
-        identity of the data it was built from; backends without a saved form ignore them.
+        ``cache_dir``/``key``: where an index may save its built form (beside the database) and the
+        identity of the data it was built from; indexes without a saved form ignore them.
         """
         b, e = _as_pair(begin, end)
         self.num_entries, self.frame_dim = b.shape
@@ -54,11 +54,11 @@ class NearestIndex(ABC):
 
     @abstractmethod
     def _fit(self, begin: np.ndarray, end: np.ndarray, cache_dir: Path | None, key: str | None) -> None:
-        """Backend-specific build."""
+        """Index-specific build."""
 
     @abstractmethod
     def _search(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Backend-specific search over validated (Q, 2D) float32 queries."""
+        """Index-specific search over validated (Q, 2D) float32 queries."""
 
     def search(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Nearest entry id (Q,) int64 and its angular distance (Q,) float64 for (Q, 2D) interval vectors."""
@@ -82,7 +82,7 @@ class NearestIndex(ABC):
     ) -> tuple[np.ndarray, np.ndarray]:
         """Nearest entries of intervals ``[start, end)`` of one demonstration's (T, D) frame vectors.
 
-        The default builds interval vectors chunk by chunk and calls ``search``; backends that can use
+        The default builds interval vectors chunk by chunk and calls ``search``; indexes that can use
         the concat(begin, end) structure override it.
         """
         fv = np.asarray(frame_vectors, dtype=np.float32)
@@ -103,7 +103,7 @@ class NearestIndex(ABC):
         """Entry whose end-frame vector is nearest to each frame (paper Eq. 3.5's OOD retrieval).
 
         Returns ids (T,) and angular distances (T,) over the end-frame vectors alone. Exact for
-        every backend: T queries only, one chunked (T, D) x (D, N) product.
+        every index: T queries only, one chunked (T, D) x (D, N) product.
         """
         if self.num_entries == 0:
             raise RuntimeError(f"{self.name} index: call fit() before search_ends()")
@@ -149,7 +149,7 @@ class NearestIndex(ABC):
     def _end_shortlist(self, unit_frames: np.ndarray) -> np.ndarray | None:
         """Ascending ids of the entries that may hold some frame's nearest end (None: every entry).
 
-        Backends with bounds on end-frame cosines override it; the result must contain every
+        Indexes with bounds on end-frame cosines override it; the result must contain every
         frame's nearest entry, and every entry within float32 rounding of it.
         """
         return None

@@ -279,11 +279,6 @@ class _Groups:
         return slice(a, b), int(self.s[a]), se_rows
 
 
-def build(**options) -> ExactIndex:
-    """The exact backend with ``options`` (memory_mb, threads, prune, cluster_size, seed)."""
-    return ExactIndex(**options)
-
-
 def _one_blas_thread():
     """Hold BLAS to one thread while our own threads split the work.
 

@@ -1,4 +1,4 @@
-"""Faiss backend: inner product on unit-normalised interval vectors (Flat, IVF or HNSW).
+"""Faiss index: inner product on unit-normalised interval vectors (Flat, IVF or HNSW).
 
 Uses a GPU when faiss-gpu is installed and sees one, the CPU otherwise.
 """
@@ -22,12 +22,12 @@ def _require_faiss():
         import faiss
     except ImportError as exc:  # optional extra
         raise ImportError(
-            "the faiss backend needs faiss: pip install 'rdd-harness[index]' (or faiss-gpu)"
+            "the faiss index needs faiss: pip install 'rdd-harness[index]' (or faiss-gpu)"
         ) from exc
     return faiss
 
 
-class FaissBackend(NearestIndex):
+class FaissIndex(NearestIndex):
     """Nearest neighbours by maximum inner product on normalised vectors (= minimum angle)."""
 
     name = "faiss"
@@ -68,10 +68,10 @@ class FaissBackend(NearestIndex):
             index = faiss.index_cpu_to_gpu(faiss.StandardGpuResources(), 0, index)
         else:
             # Measured (benchmarks/bench_decompose.py --scale 12700, T=500, 2 cores): flat 86 s,
-            # hnsw 161 s, ivf 115 s (recall@1 0.88) vs 1.1 s for the exact backend, which
+            # hnsw 161 s, ivf 115 s (recall@1 0.88) vs 1.1 s for the exact index, which
             # factorises concat(begin, end) products over the demo's frames; faiss cannot.
             log.warning("faiss index on the CPU: every candidate interval is searched as a %d-d "
-                        "vector; the exact backend is far faster on a CPU (use faiss with a GPU)", dim)
+                        "vector; the exact index is far faster on a CPU (use faiss with a GPU)", dim)
         index.add(x)
         self._index = index
 
@@ -84,8 +84,3 @@ class FaissBackend(NearestIndex):
                 "faiss index returned no neighbour for some queries (raise nprobe or ef_search)"
             )
         return ids, cosine_to_angular(sims[:, 0])
-
-
-def build(**options) -> FaissBackend:
-    """The faiss backend with ``options`` (kind, nlist, nprobe, hnsw_m, ef_search, use_gpu)."""
-    return FaissBackend(**options)

@@ -65,7 +65,7 @@ def test_runtime_objects_go_only_where_taken(encoder):
 
 
 def test_rdd_gets_the_index_group_s_choice_from_its_config(encoder):
-    """The index is composed (``backend: ${index}``), not passed: abl_backend's sweep reaches RDD."""
+    """The index is composed (``index: ${index}``), not passed: abl_backend's sweep reaches RDD."""
     from rdd.database import SubtaskDatabase
 
     rng = np.random.default_rng(0)
@@ -74,7 +74,7 @@ def test_rdd_gets_the_index_group_s_choice_from_its_config(encoder):
                                      [f"s{i}" for i in range(6)],
                                      meta={"encoder": encoder.name, "weights_id": encoder.weights_id,
                                            "views": ["front", "wrist"]})
-    for index, cls in (("exact", "ExactIndex"), ("annoy", "AnnoyBackend")):
+    for index, cls in (("exact", "ExactIndex"), ("annoy", "AnnoyIndex")):
         with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
             cfg = compose(config_name="config", overrides=["decomposer=rdd", f"index={index}",
                                                            "paths.cache_dir=/tmp/unused"])

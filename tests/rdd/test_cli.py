@@ -273,6 +273,14 @@ def test_build_db_calibrates_and_decompose_uses_it(data, tmp_path, capsys):
     assert out["config"]["alpha"] == cal["chosen"]["alpha"]
     assert out["config"]["option_source"]["alpha"] == "calibration"
     assert set(out["episodes"][0]["instructions"]) == {"move the colours"}
+    # the index by its name and by its older one (scripts pass --option backend=...): the same run
+    for key in ("index", "backend"):
+        assert run("decompose", "--format", "native", "--data", data, "--include", "ep0", "--decomposer", "rdd",
+                   "--db", tmp_path / "db", "--option", f"{key}=annoy", *cache, "--out", tmp_path / f"{key}.json") == 0
+    by_index, by_backend = (json.loads((tmp_path / f"{k}.json").read_text()) for k in ("index", "backend"))
+    assert by_index["config"]["backend"] == by_backend["config"]["backend"] == "annoy"
+    assert by_index["config"]["options"] == {"index": "annoy"} and by_backend["config"]["options"] == {"backend": "annoy"}
+    assert by_index["episodes"] == by_backend["episodes"]
     assert run("decompose", "--format", "native", "--data", data, "--include", "ep0", "--alpha", "7",
                "--decomposer", "rdd", "--db", tmp_path / "db", *cache, "--out", tmp_path / "b.json") == 0
     cfg = json.loads((tmp_path / "b.json").read_text())["config"]
@@ -280,7 +288,7 @@ def test_build_db_calibrates_and_decompose_uses_it(data, tmp_path, capsys):
     assert cfg["min_len"] == cal["chosen"]["min_len"]
     # rerun with another grid: the manifest records it
     assert run("calibrate", "--db", tmp_path / "db", "--alpha", "0.5,3", "--min-len", "2",
-               "--max-len", "none") == 0
+               "--max-len", "none", "--backend", "exact") == 0  # --backend: --index by its older name
     cal2 = json.loads((tmp_path / "db" / "manifest.json").read_text())["calibration"]
     assert cal2["grid"] == {"alpha": [0.5, 3.0], "min_len": [2], "max_len": [None]}
     assert cal2["chosen"]["alpha"] in (0.5, 3.0, 1.0)

@@ -1,4 +1,4 @@
-"""Retrieval backends: exact equals brute force; annoy and faiss reach high recall."""
+"""Retrieval indexes: exact equals brute force; annoy and faiss reach high recall."""
 
 from __future__ import annotations
 
@@ -86,7 +86,7 @@ def _recall(index: NearestIndex, rng) -> float:
     "name,options",
     [("annoy", {}), ("faiss", {"kind": "flat"}), ("faiss", {"kind": "ivf"}), ("faiss", {"kind": "hnsw"})],
 )
-def test_approximate_backends_recall(name, options):
+def test_approximate_indexes_recall(name, options):
     recall = _recall(load_index(name, **options), np.random.default_rng(2))
     assert recall >= 0.9, f"{name} {options}: recall {recall:.3f}"
 
@@ -138,9 +138,9 @@ def test_exact_clusters_saved_beside_database(tmp_path, monkeypatch):
 def test_load_index_by_module_name_and_errors():
     assert {"annoy", "exact", "faiss"} <= set(available_indexes())
     assert isinstance(load_index("exact"), ExactIndex)
-    with pytest.raises(ValueError, match="unknown index backend"):
+    with pytest.raises(ValueError, match="unknown index 'nope'"):
         load_index("nope")
-    with pytest.raises(ValueError, match="unknown index backend"):
+    with pytest.raises(ValueError, match="is not a component name"):
         load_index("../x")
     with pytest.raises(ValueError, match="kind"):
         load_index("faiss", kind="pq")

@@ -41,8 +41,8 @@ def assemble(db_demos, picks):
     return np.concatenate(parts), truth, entries
 
 
-@pytest.mark.parametrize("backend", ["exact", "annoy", "faiss"])
-def test_demo_assembled_from_database_subtasks_decomposes_back(world_db, backend):
+@pytest.mark.parametrize("index", ["exact", "annoy", "faiss"])
+def test_demo_assembled_from_database_subtasks_decomposes_back(world_db, index):
     world, db, demos = world_db
     rng = np.random.default_rng(5)
     tasks = sorted(demos)
@@ -52,7 +52,7 @@ def test_demo_assembled_from_database_subtasks_decomposes_back(world_db, backend
         i = int(rng.integers(len(demos[task])))
         picks.append((task, i, int(rng.integers(len(demos[task][i][1])))))
     fv, truth, entries = assemble(demos, picks)
-    result = RDDDecomposer(db, alpha=1.0, backend=backend).decompose_embeddings(fv)
+    result = RDDDecomposer(db, alpha=1.0, index=index).decompose_embeddings(fv)
     assert isinstance(result, Decomposition)
     assert result.segments == truth
     assert result.keyframes == [e - 1 for _, e in truth]
@@ -247,8 +247,8 @@ def test_bad_arguments(world_db):
         RDDDecomposer(db, mode="fast")
     with pytest.raises(ValueError, match="max_len"):
         RDDDecomposer(db, min_len=4, max_len=3)
-    with pytest.raises(ValueError, match="unknown index backend"):
-        RDDDecomposer(db, backend="kdtree")
+    with pytest.raises(ValueError, match="unknown index 'kdtree'"):
+        RDDDecomposer(db, index="kdtree")
     with pytest.raises(TypeError, match="SubtaskDatabase"):
         RDDDecomposer(np.ones((3, 3)))
     dec = RDDDecomposer(db)
@@ -265,7 +265,7 @@ def test_decomposer_configs_instantiate(world_db):
     _, db, demos = world_db
     fv, truth = demos["task_0"][0]
     for name, mode in (("rdd", "default"), ("rdd_ood", "ood")):
-        # as the harness composes it: `backend: ${index}` is the index group's choice
+        # as the harness composes it: `index: ${index}` is the index group's choice
         cfg = OmegaConf.create({"index": OmegaConf.load(CONF.parent / "index" / "exact.yaml"),
                                 "decomposer": OmegaConf.load(CONF / f"{name}.yaml")})
         partial = instantiate(cfg.decomposer)

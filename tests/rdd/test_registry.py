@@ -55,3 +55,15 @@ def test_cli_offers_exactly_the_registry():
     help_text = decomposer_help()
     for name in DECOMPOSERS:
         assert f"  {name}: " in help_text
+
+
+def test_one_constructor_with_exactly_the_runtime_objects_taken():
+    """What the CLI and the harness both call: options checked by name, runtime objects by parameter."""
+    uvd = registry.component("decomposer", "uvd")
+    assert registry.runtime_names(uvd) == ("encoder", "cache")
+    with pytest.raises(TypeError, match=r"takes the runtime objects \['encoder', 'cache'\]"):
+        registry.construct(uvd, {"encoder": None}, "decomposer uvd")
+    with pytest.raises(ValueError, match=r"decomposer uvd: unknown option\(s\) \['bogus'\]"):
+        registry.check_option_names("decomposer", uvd, {"bogus": 1})
+    assert registry.construct(uvd, {"encoder": None, "cache": None}, "decomposer uvd", min_interval=5).min_interval == 5
+    assert type(registry.build("index", "exact")) is registry.component("index", "exact")
