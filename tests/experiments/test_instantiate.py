@@ -112,3 +112,13 @@ def test_unknown_runtime_name_fails_before_any_stage(tmp_path: Path, group: str,
     assert f"{group} ({cls.__module__}.{cls.__qualname__})" in msg and repr(param) in msg, msg
     assert "database, encoder, cache" in msg
     assert not any((tmp_path / "cache").glob("*/*")), "no stage may run before the check"
+
+
+@pytest.mark.parametrize("option", sorted(p.stem for p in (CONF / "decomposer").glob("*.yaml")))
+def test_decomposer_views_are_the_run_s(option: str):
+    """A decomposer embeds the run's views (top-level ``views``), never a copy of its own that could drift."""
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[f"decomposer={option}", "views=[wrist]",
+                                                       "paths.cache_dir=/tmp/unused"])
+    if "views" in cfg.decomposer:
+        assert list(cfg.decomposer.views) == ["wrist"], option

@@ -265,11 +265,12 @@ def test_decomposer_configs_instantiate(world_db):
     _, db, demos = world_db
     fv, truth = demos["task_0"][0]
     for name, mode in (("rdd", "default"), ("rdd_ood", "ood")):
-        # as the harness composes it: `index: ${index}` is the index group's choice
+        # as the harness composes it: `index: ${index}` is the index group's choice, `${views}` the run's
         cfg = OmegaConf.create({"index": OmegaConf.load(CONF.parent / "index" / "exact.yaml"),
+                                "views": ["front", "wrist"],
                                 "decomposer": OmegaConf.load(CONF / f"{name}.yaml")})
         partial = instantiate(cfg.decomposer)
-        dec = partial(database=db, encoder=None, views=("front", "wrist"))
+        dec = partial(database=db, encoder=None)
         assert isinstance(dec, RDDDecomposer) and dec.mode == mode
         result = dec.decompose_embeddings(fv)
         assert result.segments[0][0] == 0 and result.segments[-1][1] == fv.shape[0]
