@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import hashlib
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+
+from rdd.errors import InputError
 
 
 def update_with_file(h: hashlib._Hash, path: str | Path) -> hashlib._Hash:
@@ -63,29 +66,54 @@ class ArrayFrames:
         return self._fingerprint
 
 
+def read_image(path: Path, size_only: bool = False) -> np.ndarray | tuple[int, int]:
+    """The RGB frame (H, W, 3) in image file ``path``, or its (width, height) from the header alone.
+
+    Any failure is an InputError naming the file, a decompression bomb included: PIL only warns
+    between its pixel limit and twice it, and a frame that large is never a camera image.
+    """
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                return im.size if size_only else np.asarray(im.convert("RGB"), dtype=np.uint8)
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        raise InputError(f"{path}: refused as a frame image ({exc})") from exc
+    except (OSError, ValueError, SyntaxError, EOFError) as exc:
+        raise InputError(f"cannot read frame image {path}: {exc}") from exc
+
+
 class ImageFileFrames:
-    """One image file per frame (e.g. RLBench's ``front_rgb/N.png``), decoded with PIL on demand."""
+    """One image file per frame (e.g. RLBench's ``front_rgb/N.png``), decoded with PIL on demand.
+
+    Every frame must have the size of the first one (read from its header), so frames loaded in
+    different calls stack and embed alike.
+    """
 
     def __init__(self, paths: Sequence[str | Path]):
         self.paths = [Path(p) for p in paths]
         self._fingerprint: str | None = None
+        self._size: tuple[int, int] | None = None
 
     def __len__(self) -> int:
         return len(self.paths)
 
     def load(self, indices: Sequence[int] | None = None) -> np.ndarray:
         """Decode the frames at ``indices`` (all when None)."""
-        from PIL import Image
-
         idx = range(len(self.paths)) if indices is None else indices
         out = []
         for i in idx:
             path = self.paths[int(i)]
-            try:
-                with Image.open(path) as im:
-                    out.append(np.asarray(im.convert("RGB"), dtype=np.uint8))
-            except (OSError, ValueError) as exc:
-                raise ValueError(f"cannot read frame image {path}: {exc}") from exc
+            frame = read_image(path)
+            if self._size is None:
+                self._size = read_image(self.paths[0], size_only=True)
+            width, height = self._size
+            if frame.shape[:2] != (height, width):
+                raise InputError(f"{path}: frame is {frame.shape[1]}x{frame.shape[0]} pixels, expected "
+                                 f"{width}x{height} like the first frame, {self.paths[0].name}")
+            out.append(frame)
         if not out:
             return np.zeros((0, 0, 0, 3), dtype=np.uint8)
         return np.stack(out)

@@ -24,6 +24,7 @@ from rdd.atomic import atomic_dir
 from rdd.data._walk import find_named
 from rdd.data.episode import Episode
 from rdd.data.frames import update_with_file
+from rdd.errors import InputError
 
 FORMAT_NAME = "rdd-native-episode"
 FORMAT_VERSION = 1
@@ -55,17 +56,17 @@ class NpzFrames:
         if self._array is None:
             try:
                 with np.load(self.path, allow_pickle=False) as data:
-                    if "frames" not in data:
-                        raise ValueError(f"{self.path}: no array named 'frames'")
-                    arr = data["frames"]
-            except (OSError, zipfile.BadZipFile) as exc:
-                raise ValueError(f"cannot read frames file {self.path}: {exc}") from exc
+                    arr = data["frames"] if "frames" in data else None
+            except (OSError, ValueError, zipfile.BadZipFile) as exc:  # ValueError: object arrays, bad headers
+                raise InputError(f"cannot read frames file {self.path}: {exc}") from exc
+            if arr is None:
+                raise InputError(f"{self.path}: no array named 'frames'")
             if arr.ndim != 4 or arr.shape[-1] != 3 or arr.dtype != np.uint8:
-                raise ValueError(
+                raise InputError(
                     f"{self.path}: 'frames' must be uint8 (T, H, W, 3), got {arr.dtype} {arr.shape}"
                 )
             if arr.shape[0] != self._len:
-                raise ValueError(
+                raise InputError(
                     f"{self.path}: holds {arr.shape[0]} frames but episode.json says {self._len}"
                 )
             self._array = arr
@@ -98,7 +99,7 @@ class LazyNpz(Mapping):
                 with np.load(self.path, allow_pickle=False) as data:
                     self._data = {k: data[k] for k in data.files}
             except (OSError, ValueError, zipfile.BadZipFile) as exc:
-                raise ValueError(f"cannot read {self.path}: {exc}") from exc
+                raise InputError(f"cannot read {self.path}: {exc}") from exc
         return self._data
 
     def __getitem__(self, key: str) -> np.ndarray:
@@ -226,18 +227,18 @@ def _read_header(directory: Path) -> dict[str, Any]:
     try:
         header = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: invalid JSON ({exc})") from exc
+        raise InputError(f"{path}: invalid JSON ({exc})") from exc
     if not isinstance(header, dict):
-        raise ValueError(f"{path}: expected a JSON object")
+        raise InputError(f"{path}: expected a JSON object")
     if header.get("format") != FORMAT_NAME:
-        raise ValueError(f"{path}: field 'format' is {header.get('format')!r}, expected {FORMAT_NAME!r}")
+        raise InputError(f"{path}: field 'format' is {header.get('format')!r}, expected {FORMAT_NAME!r}")
     if header.get("version") != FORMAT_VERSION:
-        raise ValueError(
+        raise InputError(
             f"{path}: field 'version' is {header.get('version')!r}; this reader knows {FORMAT_VERSION}"
         )
     for key, kind in (("name", str), ("num_frames", int), ("views", list)):
         if not isinstance(header.get(key), kind):
-            raise ValueError(f"{path}: field {key!r} is missing or not a {kind.__name__}")
+            raise InputError(f"{path}: field {key!r} is missing or not a {kind.__name__}")
     return header
 
 
@@ -258,17 +259,17 @@ def load_episode(directory: str | Path) -> Episode:
         try:
             with np.load(lowdim_path, allow_pickle=False) as data:
                 unknown = sorted(set(data.files) - set(LOWDIM_FIELDS))
-                if unknown:
-                    raise ValueError(f"{lowdim_path}: unknown arrays {unknown}")
-                lowdim = {k: data[k] for k in data.files}
-        except (OSError, zipfile.BadZipFile) as exc:
-            raise ValueError(f"cannot read {lowdim_path}: {exc}") from exc
+                lowdim = {} if unknown else {k: data[k] for k in data.files}
+        except (OSError, ValueError, zipfile.BadZipFile) as exc:  # ValueError: object arrays, bad headers
+            raise InputError(f"cannot read {lowdim_path}: {exc}") from exc
+        if unknown:
+            raise InputError(f"{lowdim_path}: unknown arrays {unknown}")
     for key, arr in lowdim.items():
         if arr.shape[0:1] != (n,):
-            raise ValueError(f"{lowdim_path}: array {key!r} has shape {arr.shape}, expected {n} rows")
+            raise InputError(f"{lowdim_path}: array {key!r} has shape {arr.shape}, expected {n} rows")
     meta = dict(header.get("meta") or {})
     if not isinstance(header.get("meta") or {}, dict):
-        raise ValueError(f"{directory / EPISODE_FILE}: field 'meta' must be an object")
+        raise InputError(f"{directory / EPISODE_FILE}: field 'meta' must be an object")
     priv_path = directory / PRIVILEGED_FILE
     meta["privileged"] = LazyNpz(priv_path) if priv_path.is_file() else {}
     meta.setdefault("source", str(directory))
@@ -279,10 +280,10 @@ def load_episode(directory: str | Path) -> Episode:
         try:
             segments = validate_segments([tuple(s) for s in segments], n)
         except (ValueError, TypeError) as exc:
-            raise ValueError(f"{directory / EPISODE_FILE}: field 'segments' is invalid: {exc}") from exc
+            raise InputError(f"{directory / EPISODE_FILE}: field 'segments' is invalid: {exc}") from exc
     instructions = header.get("instructions")
     if instructions is not None and segments is not None and len(instructions) != len(segments):
-        raise ValueError(
+        raise InputError(
             f"{directory / EPISODE_FILE}: {len(instructions)} instructions for {len(segments)} segments"
         )
     return Episode(

@@ -19,6 +19,7 @@ import numpy as np
 from rdd.data._walk import find_named
 from rdd.data.episode import Episode
 from rdd.data.frames import ImageFileFrames
+from rdd.errors import InputError
 
 LOW_DIM_FILE = "low_dim_obs.pkl"
 DESCRIPTIONS_FILE = "variation_descriptions.pkl"
@@ -106,16 +107,28 @@ def restricted_load(path: str | Path) -> Any:
             raise
         raise pickle.UnpicklingError(f"{path}: not a readable RLBench pickle ({exc})") from exc
     except Exception as exc:  # corrupt or truncated pickles raise many types; report the file either way
-        raise ValueError(f"{path}: not a readable RLBench pickle ({type(exc).__name__}: {exc})") from exc
+        raise InputError(f"{path}: not a readable RLBench pickle ({type(exc).__name__}: {exc})") from exc
+
+
+def _kind(value: Any) -> str:
+    return value._type if isinstance(value, PickleRecord) else type(value).__name__
+
+
+def _what(value: Any) -> str:
+    """A short description of an unpickled value for an error message (never its whole repr)."""
+    if isinstance(value, list | tuple):
+        kinds = sorted({_kind(v) for v in value[:50]})
+        return f"a {type(value).__name__} of {len(value)} items ({', '.join(kinds) or 'empty'})"
+    return f"a {_kind(value)}"
 
 
 def _observations(demo: Any, path: Path) -> list[Any]:
-    """The list of Observation records inside an unpickled Demo (or a bare list)."""
-    if isinstance(demo, list):
-        return demo
-    obs = getattr(demo, "_observations", None)
-    if not isinstance(obs, list):
-        raise ValueError(f"{path}: expected an rlbench Demo with '_observations', got {demo!r}")
+    """The list of Observation records inside an unpickled Demo (or a bare list of them)."""
+    obs = demo if isinstance(demo, list) else getattr(demo, "_observations", None)
+    if not isinstance(obs, list) or not all(isinstance(o, PickleRecord) for o in obs):
+        got = _what(demo) if obs is demo or not isinstance(demo, PickleRecord) else \
+            f"{_what(demo)} whose '_observations' is {_what(obs)}"
+        raise InputError(f"{path}: expected an rlbench Demo (a list of rlbench Observation records), got {got}")
     return obs
 
 
@@ -123,12 +136,16 @@ def _stack(observations: list[Any], attr: str, path: Path, required: bool) -> np
     values = [getattr(o, attr, None) for o in observations]
     if all(v is None for v in values):
         if required:
-            raise ValueError(f"{path}: observations have no {attr!r}")
+            raise InputError(f"{path}: observations have no {attr!r}")
         return None
     if any(v is None for v in values):
         missing = next(i for i, v in enumerate(values) if v is None)
-        raise ValueError(f"{path}: observation {missing} lacks {attr!r}")
-    return np.asarray([np.asarray(v, dtype=np.float64) for v in values])
+        raise InputError(f"{path}: observation {missing} lacks {attr!r}")
+    try:
+        return np.asarray([np.asarray(v, dtype=np.float64) for v in values])
+    except (ValueError, TypeError) as exc:  # strings, or arrays of different lengths
+        raise InputError(f"{path}: observation attribute {attr!r} is not one numeric array per frame "
+                         f"({type(exc).__name__}: {exc})") from exc
 
 
 def _frame_number(p: Path) -> int:
@@ -151,7 +168,7 @@ def _view_frames(directory: Path, view: str, num_frames: int) -> ImageFileFrames
     files.sort(key=_frame_number)
     numbers = [_frame_number(p) for p in files]
     if numbers != list(range(num_frames)):
-        raise ValueError(
+        raise InputError(
             f"{folder}: expected images 0.png..{num_frames - 1}.png to match {LOW_DIM_FILE}, "
             f"found {len(files)} images"
         )
@@ -176,7 +193,7 @@ def load_episode(
         raise FileNotFoundError(f"{directory} is not an RLBench episode: {LOW_DIM_FILE} is missing")
     observations = _observations(restricted_load(low_dim), low_dim)
     if not observations:
-        raise ValueError(f"{low_dim}: the demo has no observations")
+        raise InputError(f"{low_dim}: the demo has no observations")
     n = len(observations)
     view_names = available_views(directory) if views is None else list(views)
     frames = {v: _view_frames(directory, v, n) for v in view_names}
@@ -184,12 +201,12 @@ def load_episode(
     if (directory / DESCRIPTIONS_FILE).is_file():
         descriptions = restricted_load(directory / DESCRIPTIONS_FILE)
         if not isinstance(descriptions, list) or not all(isinstance(d, str) for d in descriptions):
-            raise ValueError(f"{directory / DESCRIPTIONS_FILE}: expected a list of strings")
+            raise InputError(f"{directory / DESCRIPTIONS_FILE}: expected a list of strings, got {_what(descriptions)}")
         goal = descriptions[0] if descriptions else ""
     if (directory / VARIATION_FILE).is_file():
         variation = restricted_load(directory / VARIATION_FILE)
         if not isinstance(variation, int):
-            raise ValueError(f"{directory / VARIATION_FILE}: expected an int, got {type(variation)}")
+            raise InputError(f"{directory / VARIATION_FILE}: expected an int, got {_what(variation)}")
     gripper = _stack(observations, "gripper_open", low_dim, required=True)
     return Episode(
         name=name or directory.name,
