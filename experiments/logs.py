@@ -1,40 +1,21 @@
 """What a run shows a person: progress bars for long steps, one line per stage, quiet libraries.
 
 The terminal gets INFO lines (``conf/hydra/job_logging/harness.yaml``) and tqdm bars on stderr that
-vanish when done; the run's log file also gets the DEBUG lines (per-epoch losses, per-episode
-outcomes, tracebacks). Libraries that print their own bars and notices (transformers' weight loading
-and shard writing) are silenced here, once per process.
+vanish when done (``rdd.progress``, the CLI's too); the run's log file also gets the DEBUG lines
+(per-epoch losses, per-episode outcomes, tracebacks). Libraries that print their own bars and
+notices (transformers' weight loading and shard writing) are silenced here, once per process.
 """
 
 from __future__ import annotations
 
 import logging
-import sys
 import warnings
-from collections.abc import Iterable, Iterator
-from typing import Any, TypeVar
+from typing import Any
 
-T = TypeVar("T")
-_SHOW_BARS = True
+# The one progress bar (rdd is the bottom layer); the harness's modules import it from here.
+from rdd.progress import progress, progress_enabled, show_progress
 
-
-def show_progress(enabled: bool) -> None:
-    """Turn the harness's progress bars on or off (off in parallel sweep jobs: their bars interleave)."""
-    global _SHOW_BARS
-    _SHOW_BARS = bool(enabled)
-
-
-def progress_enabled() -> bool:
-    """Whether long steps draw a progress bar."""
-    return _SHOW_BARS
-
-
-def progress(items: Iterable[T], desc: str, total: int | None = None, unit: str = "it") -> Iterator[T]:
-    """``items`` with a tqdm bar on stderr (done/total, rate, ETA) that is cleared when finished."""
-    from tqdm import tqdm
-
-    yield from tqdm(items, desc=desc, total=total, unit=unit, leave=False, file=sys.stderr,
-                    disable=not _SHOW_BARS, dynamic_ncols=True)
+__all__ = ["progress", "progress_enabled", "quiet_libraries", "show_progress", "stage_lines"]
 
 
 def quiet_libraries() -> None:

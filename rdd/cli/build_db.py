@@ -14,11 +14,11 @@ from rdd.cli.common import (
     make_cache,
     make_encoder,
     parse_options,
-    progress,
     resolve_views,
 )
 from rdd.cli.components import expert_decomposer
 from rdd.cli.options import data_args, embed_args, expert_args, force_arg, with_reader_help
+from rdd.progress import progress
 
 
 def cmd_build_db(args: argparse.Namespace) -> int:
@@ -79,7 +79,7 @@ def cmd_build_db(args: argparse.Namespace) -> int:
         try:
             db.meta["calibration"] = calibrate(db, sample=args.calibration_sample,
                                                seed=args.calibration_seed,
-                                               progress=lambda xs: progress(xs, "calibration"))
+                                               progress=lambda xs: progress(xs, "calibration", leave=True))
         except CalibrationError as exc:
             raise CLIError(str(exc)) from exc
     out = db.save(out, overwrite=args.force)

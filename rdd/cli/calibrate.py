@@ -6,7 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from rdd.cli.common import CLIError, progress
+from rdd.cli.common import CLIError
+from rdd.progress import progress
 
 
 def _grid_values(text: str | None, flag: str, cast) -> list | None:
@@ -40,7 +41,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             grid[key] = values
     try:
         cal = calibrate(db, grid=grid, sample=args.sample, seed=args.seed, index=args.index,
-                        progress=lambda xs: progress(xs, "calibration"))
+                        progress=lambda xs: progress(xs, "calibration", leave=True))
     except CalibrationError as exc:
         raise CLIError(f"--db {args.db}: {exc}") from exc
     if cal is None:

@@ -64,15 +64,6 @@ def check_output(path: str | Path | None, flag: str, force: bool, kind: str = "f
     return path
 
 
-def progress(items, desc: str):
-    """A tqdm bar over ``items`` on stderr (a terminal only); frames-aware bars: ``track_episodes``."""
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover - tqdm is a dependency
-        return items
-    return tqdm(items, desc=desc, file=sys.stderr, disable=None, dynamic_ncols=True)
-
-
 def write_json_atomic(path: str | Path, data: Any, overwrite: bool = True) -> Path:
     """Write ``data`` as compact JSON to ``path`` atomically (``rdd.atomic``)."""
     return _write_json(path, data, overwrite=overwrite, dumps=dumps_compact)
