@@ -7,12 +7,19 @@ encoder name and weights hash, views, ``normalize_views``, dimensions, entry cou
 checksums, the calibration's chosen options and scores). The directory is written whole through
 ``rdd.atomic.atomic_dir``: it appears complete or not at all, and an existing one is replaced only
 with ``overwrite=True``.
+
+The manifest's own fields change the segments as much as the arrays do (``views`` in another order
+pairs query and entry vectors wrongly), so ``field_checksums`` holds the sha256 of each field's
+canonical JSON and a hand-edited field is an error naming it. Databases of format 1, written before
+that, still load, with a warning that their manifest is trusted as it is (rebuild to have it
+checked): failing them would throw away every database built so far for a check they never had.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,13 +32,18 @@ from rdd.errors import InputError
 if TYPE_CHECKING:
     from rdd.database import SubtaskDatabase
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+UNSEALED_VERSION = 1  # format 1: the same files, without field_checksums
 MANIFEST = "manifest.json"
+SEAL = "field_checksums"
 _ARRAYS = ("begin.npy", "end.npy", "durations.npy")
 _ENTRIES = "entries.json"
 _FRAMES = "frames.npz"
 # The per-entry provenance lists of entries.json besides the instructions (``labels``).
 PER_ENTRY = ("episodes", "tasks", "starts", "ends")
+
+
+log = logging.getLogger(__name__)
 
 
 class DatabaseError(InputError):
@@ -42,10 +54,38 @@ def _sha256(path: Path) -> str:
     return update_with_file(hashlib.sha256(), path).hexdigest()
 
 
+def _field_sha256(value: Any) -> str:
+    """sha256 of a manifest value's canonical JSON (as read back, so writing and reading agree)."""
+    canonical = json.dumps(json.loads(json.dumps(value)), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(canonical.encode()).hexdigest()
+
+
+def seal(manifest: dict[str, Any]) -> dict[str, Any]:
+    """``manifest`` with ``field_checksums``: the sha256 of every other field."""
+    fields = {k: v for k, v in manifest.items() if k != SEAL}
+    return {**fields, SEAL: {k: _field_sha256(v) for k, v in fields.items()}}
+
+
+def check_seal(manifest: dict[str, Any], mpath: Path, skip: tuple[str, ...] = ()) -> None:
+    """Raise DatabaseError naming the first field (other than ``skip``) that differs from its checksum."""
+    sums = manifest.get(SEAL)
+    if not isinstance(sums, dict):
+        raise DatabaseError(f"{mpath}: field {SEAL!r} is missing or not an object; rebuild the database")
+    for key in sorted(set(sums) | set(manifest) - {SEAL}):
+        if key in skip:
+            continue
+        if key not in manifest:
+            raise DatabaseError(f"{mpath}: field {key!r} was removed after the database was written; "
+                                "restore it or rebuild the database")
+        if sums.get(key) != _field_sha256(manifest[key]):
+            raise DatabaseError(f"{mpath}: field {key!r} does not match its checksum in {SEAL!r} (edited after "
+                                "the database was written?); restore it or rebuild the database")
+
+
 def make_manifest(db: SubtaskDatabase, out: Path) -> dict[str, Any]:
     """The manifest of ``db``, whose other files are already written in ``out``."""
     files = [*_ARRAYS, _ENTRIES] + ([_FRAMES] if db.frames else [])
-    return {
+    return seal({
         "format_version": FORMAT_VERSION,
         "encoder": db.meta.get("encoder"),
         "weights_id": db.meta.get("weights_id"),
@@ -58,7 +98,7 @@ def make_manifest(db: SubtaskDatabase, out: Path) -> dict[str, Any]:
         "extra": {k: v for k, v in db.meta.items()
                   if k not in ("encoder", "weights_id", "views", "normalize_views", "calibration")},
         "checksums": {name: _sha256(out / name) for name in files},
-    }
+    })
 
 
 def write_files(db: SubtaskDatabase, tmp: Path) -> None:
@@ -77,11 +117,14 @@ def write_files(db: SubtaskDatabase, tmp: Path) -> None:
 
 
 def record_calibration(directory: Path, calibration: dict[str, Any]) -> Path:
-    """Write ``calibration`` into the manifest of the database in ``directory`` (one atomic rewrite)."""
+    """Write ``calibration`` into the manifest of the database in ``directory`` (one atomic rewrite,
+    resealed; a format-1 manifest becomes format 2)."""
     mpath = directory / MANIFEST
     manifest = json.loads(mpath.read_text())
-    manifest["calibration"] = calibration
-    write_json_atomic(mpath, manifest, dumps=lambda m: json.dumps(m, indent=2))
+    if manifest.get("format_version") == FORMAT_VERSION:
+        check_seal(manifest, mpath, skip=("calibration",))  # never seal a hand edit as if it were ours
+    manifest.update(format_version=FORMAT_VERSION, calibration=calibration)
+    write_json_atomic(mpath, seal(manifest), dumps=lambda m: json.dumps(m, indent=2))
     return mpath
 
 
@@ -97,10 +140,11 @@ def read_files(root: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.n
         manifest = json.loads(mpath.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DatabaseError(f"{mpath} is not valid JSON: {exc}") from exc
-    if manifest.get("format_version") != FORMAT_VERSION:
-        raise DatabaseError(
-            f"{mpath}: format_version {manifest.get('format_version')!r}, this code reads {FORMAT_VERSION}"
-        )
+    if not isinstance(manifest, dict):
+        raise DatabaseError(f"{mpath}: expected a JSON object, got {type(manifest).__name__}")
+    if manifest.get("format_version") not in (FORMAT_VERSION, UNSEALED_VERSION):
+        raise DatabaseError(f"{mpath}: format_version {manifest.get('format_version')!r}, this code reads "
+                            f"{UNSEALED_VERSION} and {FORMAT_VERSION}")
     for key in ("frame_dim", "count", "checksums", "encoder", "weights_id", "views"):
         if key not in manifest:
             raise DatabaseError(f"{mpath}: field {key!r} is missing")
@@ -125,6 +169,13 @@ def read_files(root: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.n
             )
     if durations.shape != (n,):
         raise DatabaseError(f"database file {root / 'durations.npy'} has shape {durations.shape}, expected ({n},)")
+    # Last, so an edit that the files contradict (frame_dim, count) is reported by that check.
+    if manifest["format_version"] == FORMAT_VERSION:
+        check_seal(manifest, mpath)
+    else:
+        log.warning("%s: format_version %s, written before manifest fields were checksummed: its views and "
+                    "encoder fields are trusted as they are (rebuild the database to have them checked)",
+                    mpath, UNSEALED_VERSION)
     entries = json.loads((root / _ENTRIES).read_text())
     return manifest, begin, end, durations, entries
 
