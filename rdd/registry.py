@@ -132,7 +132,16 @@ def unset_parameters(fn: Any, given: Iterable[str]) -> list[str]:
 
 
 def check_option_names(group: str, fn: Any, options: Mapping[str, Any], reserved: Sequence[str] = ()) -> None:
-    """Reject keys of ``options`` that ``fn`` does not take (``reserved``: set by the caller, not an option)."""
+    """Reject keys of ``options`` that ``fn`` does not take (``reserved``: set by the caller, not an option).
+
+    A ``fn`` with ``**kwargs`` passes the other keys on; it checks them itself (e.g. the VLM
+    decomposer's backend options).
+    """
+    try:
+        if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in inspect.signature(fn).parameters.values()):
+            return
+    except (TypeError, ValueError):
+        pass
     accepted = [p for p in parameters(fn) if p not in reserved]
     unknown = sorted(set(options) - set(accepted))
     if unknown:

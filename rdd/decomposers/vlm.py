@@ -235,12 +235,18 @@ class TransformersVLMBackend:
 
 
 def make_backend(backend: str, **options: Any) -> VLMBackend:
-    """Build a backend by name: ``openai`` or ``transformers``."""
-    if backend == "openai":
-        return OpenAIChatBackend(**options)
-    if backend == "transformers":
-        return TransformersVLMBackend(**options)
-    raise ValueError(f"unknown VLM backend {backend!r}; choose 'openai' or 'transformers'")
+    """Build a backend by name: ``openai`` or ``transformers``; an option it does not take is an error."""
+    import inspect
+
+    classes = {"openai": OpenAIChatBackend, "transformers": TransformersVLMBackend}
+    if backend not in classes:
+        raise ValueError(f"unknown VLM backend {backend!r}; choose 'openai' or 'transformers'")
+    accepted = [n for n in inspect.signature(classes[backend]).parameters if n != "self"]
+    unknown = sorted(set(options) - set(accepted))
+    if unknown:
+        raise ValueError(f"VLM backend {backend!r}: unknown option(s) {unknown}; accepted: "
+                         f"backend, view, max_frames, max_side, prompt, {', '.join(accepted)}")
+    return classes[backend](**options)
 
 
 class VLMDecomposer(Decomposer):

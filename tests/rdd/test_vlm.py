@@ -187,3 +187,14 @@ def test_local_transformers_checkpoint(tmp_path):
         assert "'demo'" in str(exc)
     else:
         assert out.segments[-1][1] == 12 and out.meta["backend"] == "transformers"
+
+
+def test_backend_options_pass_the_option_check_and_are_checked_by_the_backend(tmp_path):
+    from rdd.registry import check_option_names, component
+
+    cls = component("decomposer", "vlm")
+    check_option_names("decomposer", cls, {"backend": "transformers", "checkpoint": "x"})  # passed on
+    with pytest.raises(FileNotFoundError, match="VLM checkpoint"):
+        cls(backend="transformers", checkpoint=str(tmp_path / "none"))
+    with pytest.raises(ValueError, match=r"unknown option\(s\) \['chekpoint'\].*checkpoint"):
+        cls(backend="transformers", chekpoint=str(tmp_path))
