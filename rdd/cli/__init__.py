@@ -3,7 +3,8 @@
 Subcommands: ``build-db``, ``calibrate``, ``decompose``, ``evaluate``, ``plot``, ``demo``. Every expected failure
 is reported as one line naming the file or option at fault, with exit status 2 (``-v`` also prints
 the traceback); Ctrl-C stops with status 130 and leaves no partial output. Outputs are written
-atomically and never replace an existing file or folder without ``--force``.
+atomically, never replace an existing file or folder without ``--force``, and never replace or go
+inside an input of the same command, ``--force`` or not.
 """
 
 from __future__ import annotations

@@ -7,6 +7,7 @@ import sys
 
 from rdd.cli.common import (
     CLIError,
+    cache_input,
     check_output,
     embed_all,
     load_data,
@@ -26,7 +27,7 @@ def cmd_build_db(args: argparse.Namespace) -> int:
     from rdd.calibrate import CalibrationError, calibrate, sample_episodes, summary
     from rdd.database import SubtaskDatabase
 
-    out = check_output(args.out, "--out", args.force, kind="dir")
+    out = check_output(args.out, "--out", args.force, kind="dir", inputs=[("--data", args.data), cache_input(args)])
     episodes = load_data(args)
     views = resolve_views(args.views, episodes[0])
     encoder = make_encoder(args.encoder, parse_options(args.encoder_option, "--encoder-option"))

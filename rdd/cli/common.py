@@ -50,8 +50,16 @@ def dumps_compact(data: Any) -> str:
     return json.dumps(data, indent=1) + "\n"
 
 
-def check_output(path: str | Path | None, flag: str, force: bool, kind: str = "file") -> Path | None:
-    """Refuse an output path that is a folder (for files), a file (for folders), or exists without --force."""
+# What the check calls an input in its message, when a flag alone says too little.
+INPUT_NAMES = {"--data": "the source dataset --data", "--cache-dir": "the embedding cache"}
+Inputs = Sequence[tuple[str, str | Path | None]]
+
+
+def check_output(path: str | Path | None, flag: str, force: bool, kind: str = "file",
+                 inputs: Inputs = ()) -> Path | None:
+    """Refuse an output path, before any work, that is a folder (for files) or a file (for folders),
+    is or holds or lies inside an input (``(flag, path)`` pairs; ``--force`` or not), or exists
+    without ``--force``."""
     if path is None:
         return None
     path = Path(path)
@@ -59,9 +67,44 @@ def check_output(path: str | Path | None, flag: str, force: bool, kind: str = "f
         raise CLIError(f"{flag} {path}: is an existing folder; give a file name")
     if kind == "dir" and path.exists() and not path.is_dir():
         raise CLIError(f"{flag} {path}: is an existing file; give a folder name")
+    check_not_input(path, flag, kind, inputs)
     if path.exists() and not force:
         raise CLIError(f"{flag} {path}: already exists; pass --force to replace it")
     return path
+
+
+def check_not_input(path: Path, flag: str, kind: str, inputs: Inputs) -> None:
+    """Refuse an output that is an input, holds one (replacing it would delete the input), or lies
+    inside an input folder as a folder or in place of one of its files (a new file beside them is fine)."""
+    target = _resolved(path)
+    for in_flag, in_path in inputs:
+        if in_path is None:
+            continue
+        source = _resolved(in_path)
+        if target == source:
+            relation = "is"
+        elif target in source.parents:
+            relation = "holds"
+        elif source in target.parents and (kind == "dir" or path.exists() or path.is_symlink()):
+            relation = "is inside"
+        else:
+            continue
+        raise CLIError(f"{flag} {path}: {relation} {INPUT_NAMES.get(in_flag, 'the input ' + in_flag)} {in_path}; "
+                       "an output never replaces or goes inside an input of the same command, --force or not")
+
+
+def _resolved(path: str | Path) -> Path:
+    """``path`` absolute, with ``~``, ``.``, ``..`` and symbolic links resolved (as far as it exists)."""
+    return Path(path).expanduser().resolve()
+
+
+def cache_input(args: argparse.Namespace) -> tuple[str, Path | None]:
+    """The embedding cache folder as an input of ``check_output`` (None with ``--no-cache``)."""
+    if args.no_cache:
+        return "--cache-dir", None
+    from rdd.encoders.cache import default_cache_dir
+
+    return "--cache-dir", Path(args.cache_dir) if args.cache_dir else default_cache_dir()
 
 
 def write_json_atomic(path: str | Path, data: Any, overwrite: bool = True) -> Path:

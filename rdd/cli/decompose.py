@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 from rdd.cli.common import (
     CLIError,
+    cache_input,
     check_output,
     embed_all,
     load_data,
@@ -122,10 +122,10 @@ def cmd_decompose(args: argparse.Namespace) -> int:
         raise CLIError("decompose needs --out FILE.json, --write-lerobot DIR, or both")
     if args.write_lerobot is not None and args.format != "lerobot":
         raise CLIError(f"--write-lerobot needs --format lerobot, not {args.format}")
-    out = check_output(args.out, "--out", args.force)
-    lerobot_out = check_output(args.write_lerobot, "--write-lerobot", False, kind="dir")
-    if lerobot_out is not None and Path(args.data).resolve() in (lerobot_out.resolve(), *lerobot_out.resolve().parents):
-        raise CLIError(f"--write-lerobot {lerobot_out}: refusing to write into the source dataset {args.data}")
+    inputs = [("--data", args.data), ("--db", args.db), ("--label-db", args.label_db), cache_input(args)]
+    out = check_output(args.out, "--out", args.force, inputs=inputs)
+    lerobot_out = check_output(args.write_lerobot, "--write-lerobot", False, kind="dir",
+                               inputs=[*inputs, ("--out", args.out)])
     if args.fallback_instruction is not None:
         fallback_instruction(args.fallback_instruction, Episode(name="check", views={}), 0, 1, (0, 1))
     episodes = load_data(args)

@@ -31,6 +31,19 @@ def read_segments_file(path: str | Path) -> dict[str, dict[str, Any]]:
     return out
 
 
+def pred_item(item: str) -> tuple[str, str]:
+    """``LABEL=FILE`` -> (LABEL, FILE); a bare ``FILE`` (also one whose name holds ``=``) -> ("", FILE)."""
+    label, sep, path = item.partition("=")
+    if not sep or not label or Path(item).exists():
+        return "", item
+    return label, path
+
+
+def pred_inputs(items: Sequence[str], flag: str = "--pred") -> list[tuple[str, str]]:
+    """The files of ``--pred`` items as inputs of ``check_output``."""
+    return [(flag, pred_item(item)[1]) for item in items]
+
+
 def pred_methods(items: Sequence[str], flag: str = "--pred") -> dict[str, dict[str, dict[str, Any]]]:
     """``LABEL=FILE`` (or bare ``FILE``, labelled by its decomposer) -> {label: {episode: record}}.
 
@@ -40,11 +53,8 @@ def pred_methods(items: Sequence[str], flag: str = "--pred") -> dict[str, dict[s
     methods: dict[str, dict[str, dict[str, Any]]] = {}
     explicit: dict[str, bool] = {}
     for item in items:
-        label, sep, path = item.partition("=")
-        if not sep or not label or Path(item).exists():
-            label, path, named = "", item, False
-        else:
-            named = True
+        label, path = pred_item(item)
+        named = bool(label)
         records = read_segments_file(path)
         if not named:
             config = json.loads(Path(path).read_text()).get("config") or {}
@@ -65,7 +75,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     """mIoU (paper and symmetric) and boundary P/R/F1 of each ``--pred`` method against ``--gt``."""
     from rdd.compare import compare_methods, format_table
 
-    out = check_output(args.out, "--out", args.force)
+    out = check_output(args.out, "--out", args.force, inputs=[*pred_inputs(args.pred), ("--gt", args.gt)])
     methods = pred_methods(args.pred)
     gt = read_segments_file(args.gt)
     try:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from rdd.cli.common import CLIError, check_output, load_data
-from rdd.cli.evaluate import pred_methods, read_segments_file
+from rdd.cli.evaluate import pred_inputs, pred_methods, read_segments_file
 from rdd.cli.options import data_args, force_arg, with_reader_help
 
 
@@ -13,7 +13,8 @@ def cmd_plot(args: argparse.Namespace) -> int:
     """Timeline figure: one row per method (and ground truth), keyframe thumbnails."""
     from rdd.plots import figure_format, plot_timelines
 
-    out = check_output(args.out, "--out", args.force)
+    out = check_output(args.out, "--out", args.force,
+                       inputs=[*pred_inputs(args.pred), ("--gt", args.gt), ("--data", args.data)])
     try:
         figure_format(out)
     except ValueError as exc:
