@@ -6,12 +6,15 @@ through :func:`atomic_file`, :func:`atomic_path` (for writers that need a file n
 temporary sibling in the target folder, flushed to disk (``fsync``), and renamed into place, so a
 crash or Ctrl-C leaves either the old file or the new one, never half of one, and two writers never
 share a temporary name. Files get the permissions an ordinary ``open()`` would give them under the
-process umask (``tempfile`` alone would leave them 0600).
+process umask (``tempfile`` alone would leave them 0600). A failure names the target, never the
+hidden temporary (the user knows only the target), and :func:`check_writable` tells before any work
+whether a target can be written at all.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
@@ -25,6 +28,7 @@ __all__ = [
     "atomic_dir",
     "atomic_file",
     "atomic_path",
+    "check_writable",
     "write_bytes_atomic",
     "write_json_atomic",
     "write_text_atomic",
@@ -55,6 +59,79 @@ def _check_target(path: Path, overwrite: bool) -> None:
         raise TargetExistsError(f"{path} already exists (refusing to replace it)")
 
 
+def _name_max(folder: Path) -> int:
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        return 255
+
+
+def _existing_folder(path: Path) -> Path:
+    """The nearest folder above ``path`` that exists (where its missing parents will be created)."""
+    folder = Path(os.path.abspath(path)).parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    return folder
+
+
+def _temp_prefix(path: Path, stem: str, tail: str) -> str:
+    """``.<stem>.`` of ``path``'s temporary siblings (``.<stem>.XXXXXXXX<tail>``), the stem shortened
+    so that a target whose own name fits the filesystem has temporaries whose names fit too."""
+    room = _name_max(_existing_folder(path)) - len(os.fsencode(tail)) - 10  # two dots, mkstemp's 8
+    while stem and len(os.fsencode(stem)) > room:
+        stem = stem[:-1]
+    return f".{stem}."
+
+
+@contextlib.contextmanager
+def _errors_name(path: Path, prefix: str) -> Iterator[None]:
+    """Re-raise an OSError about a temporary sibling of ``path`` (prefix ``prefix``) as one about ``path``."""
+    try:
+        yield
+    except TargetExistsError:
+        raise
+    except OSError as exc:
+        name = _target_of(exc.filename, path, prefix)
+        if name is None or exc.errno is None:
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), name) from exc
+
+
+def _target_of(filename: Any, path: Path, prefix: str) -> str | None:
+    """The target file that the temporary ``filename`` stands for (a file inside a temporary folder
+    maps to the same file inside ``path``), or None when ``filename`` is not a temporary of ``path``."""
+    if filename is None:
+        return None
+    name = Path(os.path.abspath(os.fsdecode(filename)))
+    parent = Path(os.path.abspath(path.parent))
+    for here in (name, *name.parents):
+        if here.parent == parent and here.name.startswith(prefix) and here.name != path.name:
+            return str(path / name.relative_to(here)) if here != name else str(path)
+    return None
+
+
+def check_writable(path: str | os.PathLike) -> None:
+    """Raise an OSError naming ``path`` when it could not be written: a file stands where a folder
+    must, a name is longer than its filesystem allows, or its nearest existing folder refuses a new
+    file (tried, so a read-only filesystem or root's permissions are judged as a write would be)."""
+    path = Path(os.path.abspath(path))
+    folder = _existing_folder(path)
+    if not folder.is_dir():
+        raise OSError(errno.ENOTDIR, f"{folder} is a file, not a folder", str(path))
+    name_max = _name_max(folder)
+    for part in path.relative_to(folder).parts:
+        if len(os.fsencode(part)) > name_max:
+            raise OSError(errno.ENAMETOOLONG, f"the name {part[:24]}... is {len(os.fsencode(part))} bytes long; "
+                          f"the filesystem of {folder} allows {name_max}", str(path))
+    try:
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=".rdd-write-check.")
+    except OSError as exc:
+        raise OSError(exc.errno or errno.EACCES, f"cannot create files in {folder} ({exc.strerror or exc})",
+                      str(path)) from None
+    os.close(fd)
+    os.unlink(probe)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, *, overwrite: bool = True) -> Iterator[Path]:
     """Yield a fresh temporary file name beside ``path`` (same suffix) for writers that need a name
@@ -64,29 +141,32 @@ def atomic_path(path: str | os.PathLike, *, overwrite: bool = True) -> Iterator[
     final step is a hard link then, so a concurrent writer that got there first still wins alone).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    _check_target(path, overwrite)
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}")
-    tmp = Path(tmp_name)
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())
-        os.close(fd)
-        yield tmp
-        fd = os.open(tmp, os.O_RDONLY)
+    suffix = f".tmp{path.suffix}"
+    prefix = _temp_prefix(path, path.stem, suffix)
+    with _errors_name(path, prefix):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _check_target(path, overwrite)
+        fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=prefix, suffix=suffix)
+        tmp = Path(tmp_name)
         try:
-            os.fsync(fd)
-        finally:
+            os.fchmod(fd, 0o666 & ~_umask())
             os.close(fd)
-        if overwrite:
-            os.replace(tmp, path)
-        else:
+            yield tmp
+            fd = os.open(tmp, os.O_RDONLY)
             try:
-                os.link(tmp, path)  # fails if path appeared meanwhile: no silent replacement
-            except FileExistsError as exc:
-                raise TargetExistsError(f"{path} already exists (refusing to replace it)") from exc
-        _fsync_dir(path.parent)
-    finally:
-        tmp.unlink(missing_ok=True)
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            if overwrite:
+                os.replace(tmp, path)
+            else:
+                try:
+                    os.link(tmp, path)  # fails if path appeared meanwhile: no silent replacement
+                except FileExistsError as exc:
+                    raise TargetExistsError(f"{path} already exists (refusing to replace it)") from exc
+            _fsync_dir(path.parent)
+        finally:
+            tmp.unlink(missing_ok=True)
 
 
 @contextlib.contextmanager
@@ -135,36 +215,38 @@ def atomic_dir(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[
     folder is moved aside and removed only after the new one is in place.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    _check_target(path, overwrite)
-    tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"))
-    try:
-        os.chmod(tmp, 0o777 & ~_umask())
-        yield tmp
-        for root, _dirs, files in os.walk(tmp):
-            for name in files:
-                with contextlib.suppress(OSError):
-                    fd = os.open(os.path.join(root, name), os.O_RDONLY)
-                    try:
-                        os.fsync(fd)
-                    finally:
-                        os.close(fd)
-        old: Path | None = None
-        if path.exists() or path.is_symlink():
-            if not overwrite:
-                raise TargetExistsError(f"{path} already exists (refusing to replace it)")
-            old = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".old"))
-            os.replace(path, old / "previous")
+    prefix = _temp_prefix(path, path.name, ".tmp")  # ".old" for the replaced folder: as long
+    with _errors_name(path, prefix):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _check_target(path, overwrite)
+        tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=prefix, suffix=".tmp"))
         try:
-            os.rename(tmp, path)  # fails if a concurrent writer created path meanwhile
-        except OSError as exc:
-            if old is not None:
-                os.replace(old / "previous", path)
-            raise TargetExistsError(f"{path} already exists (another writer finished first)") from exc
+            os.chmod(tmp, 0o777 & ~_umask())
+            yield tmp
+            for root, _dirs, files in os.walk(tmp):
+                for name in files:
+                    with contextlib.suppress(OSError):
+                        fd = os.open(os.path.join(root, name), os.O_RDONLY)
+                        try:
+                            os.fsync(fd)
+                        finally:
+                            os.close(fd)
+            old: Path | None = None
+            if path.exists() or path.is_symlink():
+                if not overwrite:
+                    raise TargetExistsError(f"{path} already exists (refusing to replace it)")
+                old = Path(tempfile.mkdtemp(dir=path.parent, prefix=prefix, suffix=".old"))
+                os.replace(path, old / "previous")
+            try:
+                os.rename(tmp, path)  # fails if a concurrent writer created path meanwhile
+            except OSError as exc:
+                if old is not None:
+                    os.replace(old / "previous", path)
+                raise TargetExistsError(f"{path} already exists (another writer finished first)") from exc
+            finally:
+                if old is not None:
+                    shutil.rmtree(old, ignore_errors=True)
+            _fsync_dir(path.parent)
         finally:
-            if old is not None:
-                shutil.rmtree(old, ignore_errors=True)
-        _fsync_dir(path.parent)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)

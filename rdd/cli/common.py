@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from rdd.atomic import check_writable
 from rdd.atomic import write_json_atomic as _write_json
 from rdd.data.episode import Episode
 from rdd.encoders.embed import DEFAULT_VIEWS
@@ -58,11 +59,15 @@ Inputs = Sequence[tuple[str, str | Path | None]]
 def check_output(path: str | Path | None, flag: str, force: bool, kind: str = "file",
                  inputs: Inputs = ()) -> Path | None:
     """Refuse an output path, before any work, that is a folder (for files) or a file (for folders),
-    is or holds or lies inside an input (``(flag, path)`` pairs; ``--force`` or not), or exists
-    without ``--force``."""
+    is or holds or lies inside an input (``(flag, path)`` pairs; ``--force`` or not), exists without
+    ``--force``, or cannot be written (an unwritable folder, a name too long)."""
     if path is None:
         return None
     path = Path(path)
+    try:  # first: a name too long for its filesystem makes even is_dir() fail
+        check_writable(path)
+    except OSError as exc:
+        raise CLIError(f"{flag} {path}: cannot be written: {exc.strerror}") from exc
     if kind == "file" and path.is_dir():
         raise CLIError(f"{flag} {path}: is an existing folder; give a file name")
     if kind == "dir" and path.exists() and not path.is_dir():

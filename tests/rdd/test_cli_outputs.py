@@ -1,14 +1,18 @@
 """Outputs of ``python -m rdd`` (issue 39): an output that is, holds or lies inside an input of the
-same command is refused, ``--force`` or not."""
+same command is refused, ``--force`` or not; an output that cannot be written fails before the
+work, naming the output and never the hidden temporary file."""
 
 from __future__ import annotations
 
 import json
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from rdd.atomic import check_writable, write_text_atomic
 from rdd.cli import main
 from rdd.data.episode import Episode
 from rdd.data.native import save_episode
@@ -28,6 +32,26 @@ def data(tmp_path_factory) -> Path:
     for k in range(2):
         save_episode(_episode(f"ep{k}", k), root / f"ep{k}")
     return root
+
+
+@pytest.fixture
+def unwritable(tmp_path) -> Path:
+    """A folder this process cannot create files in (root ignores modes: then /sys, mounted read-only)."""
+    if os.geteuid() != 0:
+        folder = tmp_path / "ro"
+        folder.mkdir()
+        folder.chmod(0o555)
+        yield folder
+        folder.chmod(0o755)
+        return
+    try:
+        fd, probe = tempfile.mkstemp(dir="/sys")
+    except OSError:
+        yield Path("/sys")
+        return
+    os.close(fd)
+    os.unlink(probe)
+    pytest.skip("no folder here refuses a new file to root")
 
 
 def fails(capsys, *argv, expect: tuple[str, ...]) -> str:
@@ -92,3 +116,35 @@ def test_decompose_never_replaces_a_file_of_its_database(data, tmp_path, capsys)
     assert (db / "manifest.json").read_bytes() == manifest
     # A new file beside an input's files changes none of them.
     assert main([str(a) for a in (*base, "--out", db / "segments.json")]) == 0
+
+
+def test_unwritable_output_fails_before_the_work(unwritable, tmp_path, capsys):
+    missing = tmp_path / "no-such-data"  # the output is checked first, so this is never reached
+    err = fails(capsys, "decompose", "--format", "native", "--data", missing, "--decomposer", "uniform",
+                "--out", unwritable / "x.json", expect=("--out", str(unwritable / "x.json"), "cannot be written"))
+    assert ".tmp" not in err and "--data" not in err
+    fails(capsys, "build-db", "--format", "native", "--data", missing, "--encoder", "pixels",
+          "--out", unwritable / "sub" / "db", expect=("--out", "cannot be written"))
+    fails(capsys, "evaluate", "--pred", missing, "--gt", missing, "--out", unwritable / "m.json",
+          expect=("--out", "cannot be written"))
+
+
+def test_long_names_fit_or_fail_first(data, tmp_path, capsys):
+    base = ["decompose", "--format", "native", "--data", data, "--decomposer", "uniform"]
+    name = "a" * 250 + ".json"  # fits (255 bytes), though its temporary sibling's plain name would not
+    assert main([str(a) for a in (*base, "--out", tmp_path / name)]) == 0
+    assert (tmp_path / name).is_file() and [p.name for p in tmp_path.iterdir()] == [name]
+    err = fails(capsys, "decompose", "--format", "native", "--data", tmp_path / "none", "--decomposer", "uniform",
+                "--out", tmp_path / ("b" * 300 + ".json"), expect=("--out", "bytes long", "allows"))
+    assert "--data" not in err
+    fails(capsys, *base, "--out", tmp_path / name / "x.json", expect=("--out", "is a file, not a folder"))
+
+
+def test_atomic_errors_name_the_target(unwritable):
+    target = unwritable / "out.json"
+    with pytest.raises(OSError) as info:
+        write_text_atomic(target, "x")
+    assert info.value.filename == str(target) and ".tmp" not in str(info.value)
+    with pytest.raises(OSError) as info:
+        check_writable(target)
+    assert info.value.filename == str(target) and "cannot create files in" in str(info.value)
