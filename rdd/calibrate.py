@@ -23,6 +23,7 @@ import numpy as np
 
 from rdd import scoring
 from rdd.database import DatabaseError, SubtaskDatabase
+from rdd.errors import InputError
 from rdd.index import load_index
 from rdd.metrics import miou
 from rdd.solver import candidate_intervals, max_sum_partition_dense
@@ -38,7 +39,7 @@ DEFAULT_MAX_LEN_FACTORS = (None, 1.25, 2.0)
 PAPER_POINT = {"alpha": 1.0, "min_len": 2, "max_len": None}
 
 
-class CalibrationError(ValueError):
+class CalibrationError(InputError):
     """Calibration cannot run on this input (the message names the option or file at fault)."""
 
 
@@ -71,12 +72,15 @@ def check_grid(grid: Mapping[str, Sequence]) -> dict[str, list]:
         if not values:
             raise CalibrationError(f"calibration grid {key!r} is empty (give at least one value)")
         for v in values:
-            if key == "alpha" and (not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0):
-                raise CalibrationError(f"calibration grid 'alpha': {v!r} is not a number >= 0")
+            if key == "alpha" and (not isinstance(v, (int, float)) or not math.isfinite(v) or not
+                                   0 <= v <= scoring.ALPHA_MAX):
+                raise CalibrationError(f"calibration grid 'alpha': {v!r} is not a number >= 0 and "
+                                       f"<= {scoring.ALPHA_MAX}", option=key)
             if key == "min_len" and (not isinstance(v, (int, np.integer)) or v < 1):
-                raise CalibrationError(f"calibration grid 'min_len': {v!r} is not an integer >= 1")
+                raise CalibrationError(f"calibration grid 'min_len': {v!r} is not an integer >= 1", option=key)
             if key == "max_len" and v is not None and (not isinstance(v, (int, np.integer)) or v < 1):
-                raise CalibrationError(f"calibration grid 'max_len': {v!r} is not None or an integer >= 1")
+                raise CalibrationError(f"calibration grid 'max_len': {v!r} is not None or an integer >= 1",
+                                       option=key)
         out[key] = [None if v is None else (float(v) if key == "alpha" else int(v)) for v in values]
     if not any(m is None or m >= n for n in out["min_len"] for m in out["max_len"]):
         raise CalibrationError("calibration grid: every max_len is below every min_len")

@@ -12,3 +12,9 @@ __all__ = ["InputError"]
 
 class InputError(ValueError):
     """Bad input: the one-line message names the file, episode, field or option at fault."""
+
+    def __init__(self, message: str, *, option: str | None = None) -> None:
+        super().__init__(message)
+        # The parameter at fault, when it is one: a front end names it as its user typed it
+        # (``--max-len`` on the command line, ``decomposer.max_len`` in a config).
+        self.option = option

@@ -82,6 +82,12 @@ def length_term(query_durations, neighbour_durations) -> np.ndarray:
     return np.abs(1.0 - q / nn)
 
 
+# The largest accepted alpha: beyond it the length term outweighs any distance (at most 2) a
+# million times over, so the ranking is by length alone, and alpha * length * weight heads for
+# float overflow (alpha=1e308 made every score -inf: "no valid partition").
+ALPHA_MAX = 1e6
+
+
 def default_similarity(distance, query_durations, neighbour_durations, alpha: float) -> np.ndarray:
     """Paper Eq. 3.4: ``-[dist(V(I), V(I_nn)) + alpha * |1 - dur(I) / dur(I_nn)|]``."""
     return -(np.asarray(distance, dtype=np.float64) + float(alpha) * length_term(query_durations, neighbour_durations))

@@ -43,6 +43,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         cal = calibrate(db, grid=grid, sample=args.sample, seed=args.seed, index=args.index,
                         progress=lambda xs: progress(xs, "calibration", leave=True))
     except CalibrationError as exc:
+        typed = getattr(args, exc.option or "", None)  # a grid value given with --alpha etc.
+        if typed is not None:
+            raise CLIError(f"--{exc.option.replace('_', '-')} {typed}: {exc}") from exc
         raise CLIError(f"--db {args.db}: {exc}") from exc
     if cal is None:
         print(f"warning: calibration skipped: --db {args.db} holds one episode, nothing to leave out",

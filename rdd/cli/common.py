@@ -150,10 +150,20 @@ def load_data(args: argparse.Namespace) -> list[Episode]:
     return episodes
 
 
+def unique_views(args_views: Sequence[str] | None) -> tuple[str, ...] | None:
+    """``--views`` as a tuple (None when not given), refusing a view named twice (it would be embedded twice)."""
+    if not args_views:
+        return None
+    twice = sorted({v for v in args_views if list(args_views).count(v) > 1})
+    if twice:
+        raise CLIError(f"--views {' '.join(args_views)}: view(s) {twice} named more than once; name each view once")
+    return tuple(args_views)
+
+
 def resolve_views(args_views: Sequence[str] | None, episode: Episode) -> tuple[str, ...]:
     """``--views``, else front+wrist when the episode has them, else all its views."""
     if args_views:
-        views = tuple(args_views)
+        views = unique_views(args_views)
     elif all(v in episode.views for v in DEFAULT_VIEWS):
         views = DEFAULT_VIEWS
     else:

@@ -10,13 +10,22 @@ objects it takes (``database`` from ``--db``, ``encoder`` from ``--encoder``, ``
 from __future__ import annotations
 
 import argparse
+import json
 from collections.abc import Mapping
 from typing import Any
 
-from rdd.cli.common import CLIError, make_cache, make_encoder, parse_options, resolve_views
+from rdd.cli.common import (
+    CLIError,
+    make_cache,
+    make_encoder,
+    parse_options,
+    resolve_views,
+    unique_views,
+)
 from rdd.data.episode import Episode
 from rdd.decomposers.base import Decomposer
 from rdd.encoders.embed import DEFAULT_VIEWS
+from rdd.errors import InputError
 from rdd.registry import (
     RUNTIME_OBJECTS,
     available,
@@ -60,10 +69,15 @@ def build_decomposer(name: str, options: Mapping[str, Any], args: argparse.Names
     cls = component("decomposer", name)
     params = parameters(cls)
     takes = runtime_names(cls)
+    views = unique_views(args.views)
     defaults = {k: getattr(args, k) for k in FLAG_DEFAULTS if k in params}
-    kwargs = {**defaults, **keyword_names(options, params)}
-    kwargs.update({k: getattr(args, k) for k in FLAG_OVERRIDES
-                   if k in params and getattr(args, k, None) is not None})
+    options = keyword_names(options, params)
+    typed = {k: getattr(args, k) for k in FLAG_OVERRIDES if k in params and getattr(args, k, None) is not None}
+    kwargs = {**defaults, **options, **typed}
+    # How the user gave each keyword, to name it so when the decomposer refuses its value.
+    given_as = {k: f"--{k.replace('_', '-')} {v}" for k, v in defaults.items()}
+    given_as.update({k: f"--option {k}={json.dumps(v)}" for k, v in options.items()})
+    given_as.update({k: f"--{k.replace('_', '-')} {v}" for k, v in typed.items()})
     if "database" in takes and not getattr(args, "db", None):
         raise CLIError(f"--decomposer {name} needs --db DIR (build one with `python -m rdd build-db`)")
     check_option_names("decomposer", cls, kwargs, reserved=SET_BY_CLI)
@@ -80,17 +94,24 @@ def build_decomposer(name: str, options: Mapping[str, Any], args: argparse.Names
             kwargs["use_calibration"] = bool(db.meta.get("calibration")) and not args.no_calibration
     if "views" in params:
         if db is not None:  # the views the database's entries were embedded with
-            kwargs["views"] = tuple(args.views) if args.views else tuple(db.meta.get("views") or DEFAULT_VIEWS)
+            kwargs["views"] = views or tuple(db.meta.get("views") or DEFAULT_VIEWS)
         elif "encoder" in takes:  # what the encoder will embed: the episodes' views
             kwargs["views"] = resolve_views(args.views, first)
         else:
-            kwargs["views"] = args.views or None
+            kwargs["views"] = views
     if "encoder" in takes:
         enc_name = args.encoder or (db.meta.get("encoder") if db is not None else DEFAULT_ENCODER)
         if not enc_name:
             raise CLIError(f"--db {args.db} records no encoder; pass --encoder")
         runtime["encoder"] = make_encoder(enc_name, parse_options(args.encoder_option, "--encoder-option"))
-    decomposer = construct(cls, runtime, f"decomposer {name}", **kwargs)
+    try:
+        decomposer = construct(cls, runtime, f"decomposer {name}", **kwargs)
+    except InputError as exc:
+        if exc.option in given_as:
+            raise CLIError(f"{given_as[exc.option]}: {exc}") from exc
+        if kwargs.get("use_calibration"):  # a value the database's calibration chose
+            raise CLIError(f"--db {args.db} (its calibration; --no-calibration ignores it): {exc}") from exc
+        raise
     config: dict[str, Any] = dict(defaults)
     if "encoder" in runtime:
         encoder = runtime["encoder"]
@@ -107,7 +128,7 @@ def expert_decomposer(args: argparse.Namespace) -> Decomposer:
     try:
         return build_decomposer("expert", {}, args)[0]
     except ValueError as exc:
-        raise CLIError(f"--option: {exc}") from exc
+        raise CLIError(f"expert rule: {exc}") from exc
 
 
 def make_decomposer(args: argparse.Namespace, first: Episode) -> tuple[Decomposer, dict[str, Any]]:

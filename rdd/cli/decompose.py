@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import string
 from collections.abc import Sequence
 from typing import Any
 
@@ -26,8 +27,27 @@ OUTPUT_VERSION = 1
 FALLBACK_FIELDS = ("task", "episode", "index", "count", "start", "end")
 
 
+def check_template(template: str) -> None:
+    """Refuse a ``--fallback-instruction`` field that is not a plain name of FALLBACK_FIELDS: attribute
+    or index access (``{task.__class__}``), conversions (``!r``) and nested fields would let a template
+    write Python internals into a dataset."""
+    fields = ", ".join("{" + f + "}" for f in FALLBACK_FIELDS)
+    try:
+        parsed = list(string.Formatter().parse(template))
+    except ValueError as exc:
+        raise CLIError(f"--fallback-instruction {template!r}: {exc}; fields: {fields}") from exc
+    for _text, name, spec, conversion in parsed:
+        if name is None:
+            continue
+        if name not in FALLBACK_FIELDS or conversion or "{" in (spec or ""):
+            shown = "{" + name + (f"!{conversion}" if conversion else "") + (f":{spec}" if spec else "") + "}"
+            raise CLIError(f"--fallback-instruction {template!r}: field {shown} is not allowed; fields are the plain "
+                           f"names {fields} (no attribute or index access, no !r/!s/!a, no nested fields)")
+
+
 def fallback_instruction(template: str, episode: Episode, index: int, count: int, segment) -> str:
     """``--fallback-instruction`` filled in for one segment (fields: FALLBACK_FIELDS)."""
+    check_template(template)
     try:
         return template.format(task=episode.goal or episode.task, episode=episode.name, index=index + 1,
                                count=count, start=int(segment[0]), end=int(segment[1]))

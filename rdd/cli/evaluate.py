@@ -27,8 +27,25 @@ def read_segments_file(path: str | Path) -> dict[str, dict[str, Any]]:
     for i, rec in enumerate(data["episodes"]):
         if not isinstance(rec, dict) or "episode" not in rec or "segments" not in rec:
             raise CLIError(f"{path}: episodes[{i}] lacks 'episode' or 'segments'")
+        _check_numbers(path, i, rec)
         out[str(rec["episode"])] = rec
     return out
+
+
+def _check_numbers(path: Path, i: int, rec: dict[str, Any]) -> None:
+    """Segments (and num_frames) as JSON whole numbers: ``"12"`` or ``12.5`` is an error, never coerced."""
+    def whole(v: Any) -> bool:
+        return isinstance(v, int) and not isinstance(v, bool)
+
+    where = f"{path}: episodes[{i}] ({rec['episode']!r})"
+    if "num_frames" in rec and rec["num_frames"] is not None and not whole(rec["num_frames"]):
+        raise CLIError(f"{where} field 'num_frames': expected a whole number, got {rec['num_frames']!r}")
+    segments = rec["segments"]
+    if not isinstance(segments, list):
+        raise CLIError(f"{where} field 'segments': expected a list of [start, end] pairs, got {segments!r}")
+    for j, seg in enumerate(segments):
+        if not (isinstance(seg, list) and len(seg) == 2 and all(whole(v) for v in seg)):
+            raise CLIError(f"{where} field 'segments'[{j}]: expected [start, end] as two whole numbers, got {seg!r}")
 
 
 def pred_item(item: str) -> tuple[str, str]:

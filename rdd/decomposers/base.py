@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rdd.data.episode import Episode
+from rdd.errors import InputError
 from rdd.segments import Segment, segments_to_keyframes
 
 
@@ -44,17 +45,21 @@ class Decomposer(ABC):
 
 # ----------------------------------------------------------------------------- option checks
 # Every decomposer validates its options with these, so a bad value fails at construction with
-# one line naming the decomposer and the option (``n_segments=2.5`` is not silently truncated).
+# one line naming the decomposer, the option and the accepted range (``n_segments=2.5`` is not
+# silently truncated, ``alpha=nan`` is not a NaN score later); the error's ``option`` lets a front
+# end name the flag or key its user typed.
 def check_int(owner: str, name: str, value: Any, minimum: int | None = None, allow_none: bool = False) -> int | None:
     """``value`` as an int (integral numbers only, no bools), at least ``minimum``."""
     if value is None and allow_none:
         return None
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and float(value).is_integer()
+    ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(float(value))
+          and float(value).is_integer())
     if not ok:
-        raise ValueError(f"{owner}: option {name} must be a whole number, got {value!r}")
+        at_least = "" if minimum is None else f" >= {minimum}"
+        raise InputError(f"{owner}: option {name} must be a whole number{at_least}, got {value!r}", option=name)
     out = int(value)
     if minimum is not None and out < minimum:
-        raise ValueError(f"{owner}: option {name} must be >= {minimum}, got {value!r}")
+        raise InputError(f"{owner}: option {name} must be >= {minimum}, got {value!r}", option=name)
     return out
 
 
@@ -63,19 +68,21 @@ def check_float(owner: str, name: str, value: Any, minimum: float | None = None,
     """``value`` as a finite float within ``[minimum, maximum]`` (``(minimum, ...`` when exclusive)."""
     if value is None and allow_none:
         return None
+    low = "" if minimum is None else f"{'>' if exclusive_min else '>='} {minimum}"
+    high = "" if maximum is None else f"<= {maximum}"
+    bounds = " and ".join(x for x in (low, high) if x)
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(float(value)):
-        raise ValueError(f"{owner}: option {name} must be a finite number, got {value!r}")
+        raise InputError(f"{owner}: option {name} must be a finite number{' ' + bounds if bounds else ''}, "
+                         f"got {value!r}", option=name)
     out = float(value)
     low_bad = minimum is not None and (out <= minimum if exclusive_min else out < minimum)
     if low_bad or (maximum is not None and out > maximum):
-        low = "" if minimum is None else f"{'>' if exclusive_min else '>='} {minimum}"
-        high = "" if maximum is None else f"<= {maximum}"
-        raise ValueError(f"{owner}: option {name} must be {' and '.join(x for x in (low, high) if x)}, got {value!r}")
+        raise InputError(f"{owner}: option {name} must be {bounds}, got {value!r}", option=name)
     return out
 
 
 def check_choice(owner: str, name: str, value: Any, choices: Sequence[Any]) -> Any:
     """``value`` if it is one of ``choices``."""
     if value not in choices:
-        raise ValueError(f"{owner}: option {name} must be one of {list(choices)}, got {value!r}")
+        raise InputError(f"{owner}: option {name} must be one of {list(choices)}, got {value!r}", option=name)
     return value

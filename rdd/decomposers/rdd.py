@@ -25,9 +25,10 @@ import numpy as np
 from rdd import scoring
 from rdd.data.episode import Episode
 from rdd.database import SubtaskDatabase
-from rdd.decomposers.base import Decomposer, Decomposition
+from rdd.decomposers.base import Decomposer, Decomposition, check_choice, check_float, check_int
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import DEFAULT_VIEWS, episode_frame_vectors
+from rdd.errors import InputError
 from rdd.index import NearestIndex, load_index
 from rdd.solver import candidate_intervals, max_sum_partition_dense
 
@@ -75,26 +76,24 @@ class RDDDecomposer(Decomposer):
     ) -> None:
         if not isinstance(database, SubtaskDatabase):
             raise TypeError(f"database must be a SubtaskDatabase, got {type(database).__name__}")
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        owner = "decomposer rdd"
+        check_choice(owner, "mode", mode, MODES)
         given = {k: v for k, v in (("alpha", alpha), ("min_len", min_len), ("max_len", max_len))
                  if v is not UNSET}
         base = database.calibrated_options() if use_calibration else PAPER_DEFAULTS
         opts = {**PAPER_DEFAULTS, **base, **given}
         self.option_source = {k: ("given" if k in given else "calibration" if use_calibration else "paper")
                               for k in PAPER_DEFAULTS}
-        alpha, min_len, max_len = opts["alpha"], opts["min_len"], opts["max_len"]
-        beta = DEFAULT_BETA[mode] if beta is None else beta
-        if alpha < 0 or beta < 0:
-            raise ValueError(f"alpha and beta must be >= 0, got alpha={alpha}, beta={beta}")
-        if int(min_len) != min_len or min_len < 1:
-            raise ValueError(f"min_len must be an integer >= 1, got {min_len!r}")
-        if max_len is not None and (int(max_len) != max_len or max_len < min_len):
-            raise ValueError(f"max_len must be None or an integer >= min_len={min_len}, got {max_len!r}")
+        self.alpha = check_float(owner, "alpha", opts["alpha"], 0.0, scoring.ALPHA_MAX)
+        self.beta = check_float(owner, "beta", DEFAULT_BETA[mode] if beta is None else beta, 0.0, scoring.ALPHA_MAX)
+        self.min_len = check_int(owner, "min_len", opts["min_len"], minimum=1)
+        self.max_len = check_int(owner, "max_len", opts["max_len"], minimum=1, allow_none=True)
+        if self.max_len is not None and self.max_len < self.min_len:
+            raise InputError(f"{owner}: option max_len must be null (unbounded) or >= min_len={self.min_len}, "
+                             f"got {opts['max_len']!r}", option="max_len")
+        self.mode = mode
         self.database = database
         self.encoder = encoder
-        self.alpha, self.beta, self.mode = float(alpha), float(beta), mode
-        self.min_len, self.max_len = int(min_len), None if max_len is None else int(max_len)
         self.views = tuple(views)
         self.normalize_views = bool(database.meta.get("normalize_views", True))
         self.uvd_options = dict(uvd_options or {})

@@ -143,3 +143,39 @@ def lerobot_factory(tmp_path):
         return make_lerobot(tmp_path / f"{version}_{count[0]}", version, lengths)
 
     return make
+
+
+@pytest.fixture(scope="module")
+def toy_native(tmp_path_factory) -> Path:
+    """``<tmp>/ds``: three 12-frame native episodes ep0-ep2 (front and wrist views; the gripper
+    closes for the middle third, so the expert rule finds three sub-tasks)."""
+    from rdd.data.episode import Episode
+    from rdd.data.native import save_episode
+
+    root = tmp_path_factory.mktemp("native") / "ds"
+    for k in range(3):
+        frames = np.random.default_rng(k).integers(0, 255, size=(12, 8, 8, 3), dtype=np.uint8)
+        save_episode(Episode(name=f"ep{k}", views={"front": frames, "wrist": frames[:, ::-1].copy()},
+                             gripper_open=np.repeat([1.0, 0.0, 1.0], 4), joint_velocities=np.ones((12, 7)),
+                             goal="toy", task="toy"), root / f"ep{k}")
+    return root
+
+
+@pytest.fixture
+def cli_fails(capsys):
+    """``cli_fails(*argv, expect=(...), absent=(...))``: run ``python -m rdd`` in process and assert
+    exit status 2 and one line on stderr, no traceback, naming every ``expect`` and no ``absent``."""
+    from rdd.cli import main
+
+    def fails(*argv, expect: tuple[str, ...], absent: tuple[str, ...] = ()) -> str:
+        capsys.readouterr()
+        assert main([str(a) for a in argv]) == 2, argv
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+        for word in expect:
+            assert word in err, (word, err)
+        for word in absent:
+            assert word not in err, (word, err)
+        return err
+
+    return fails
