@@ -25,6 +25,16 @@ def figure_format(path: str | Path) -> str:
     return FIGURE_FORMATS[suffix]
 
 
+def drawable(text: str) -> str:
+    """``text`` as a font can draw it. A name that is not UTF-8 on disk reaches Python with its bad
+    bytes as lone surrogates (surrogateescape), which fonts refuse; they are drawn as ``\\xff``
+    escapes, as ``ls -b`` shows them, so the episode stays recognisable and distinct."""
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a lone surrogate that was not a byte (JSON "\\ud800"): its code point
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 def _thumbnail(image: np.ndarray, height: int = 48) -> np.ndarray:
     """Nearest-neighbour downscale to ``height`` pixels tall (keeps aspect ratio)."""
     h, w = image.shape[:2]
@@ -103,12 +113,12 @@ def plot_timelines(
         for i, (_label, segs) in enumerate(checked):
             _draw_row(ax, segs, t, thumbs, y=count - 1 - i, max_thumbs=max_thumbs)
         ax.set_yticks([count - 1 - i for i in range(count)])
-        ax.set_yticklabels([f"{label} ({len(segs)})" for label, segs in checked])
+        ax.set_yticklabels([drawable(f"{label} ({len(segs)})") for label, segs in checked])
         ax.set_xlim(-0.5, t - 0.5)
         ax.set_ylim(-0.6, count - 1 + 1.1)
         ax.set_xlabel("frame")
         goal = f": {episode.goal}" if episode.goal else ""
-        ax.set_title(f"{episode.name} ({t} frames){goal}", fontsize=10, loc="left")
+        ax.set_title(drawable(f"{episode.name} ({t} frames){goal}"), fontsize=10, loc="left")
         ax.grid(axis="x", alpha=0.3)
     fig.tight_layout()
     try:

@@ -32,3 +32,30 @@ def test_bad_rows_are_named(tmp_path):
     with pytest.raises(ValueError, match="no view 'wrist'"):
         plot_timelines([(ep, {"ok": [(0, 5)]}, None)], tmp_path / "x.png", view="wrist")
     assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("suffix", [".png", ".svg"])
+def test_names_that_are_not_utf8_are_drawn_escaped(toy_native, tmp_path, suffix):
+    """A native episode folder whose name is not UTF-8 (issue 39): decompose and plot it from the
+    command line; the figure draws the bad byte as ``\\xff`` instead of failing in matplotlib."""
+    import os
+    import shutil
+
+    from rdd.cli import main
+    from rdd.plots import drawable
+
+    data = tmp_path / "ds"
+    bad = os.fsdecode(b"ep\xff")
+    try:
+        shutil.copytree(toy_native / "ep0", data / bad)
+    except (OSError, UnicodeEncodeError):
+        pytest.skip("this filesystem refuses file names that are not UTF-8")
+    pred = tmp_path / "u.json"
+    assert main(["decompose", "--format", "native", "--data", str(data), "--decomposer", "uniform",
+                 "--option", "n_segments=2", "--out", str(pred)]) == 0
+    out = tmp_path / f"fig{suffix}"
+    assert main(["plot", "--pred", f"{bad}={pred}", "--format", "native", "--data", str(data),
+                 "--out", str(out)]) == 0
+    if suffix == ".svg":
+        assert "ep\\xff" in out.read_text()
+    assert drawable(bad) == "ep\\xff" and drawable("a\ud800b") == "a\\ud800b" and drawable("é") == "é"
