@@ -296,16 +296,12 @@ class Run:
 
     def val_window(self) -> tuple[int, int]:
         """(M, first): the validation demos ``first .. first+M-1`` the planner is finetuned on."""
-        m, first = int(self.cfg.data.val_episodes_per_task), int(self.cfg.data.val_first_episode)
-        if first < 0:
-            raise ValueError(f"data.val_first_episode must be >= 0, got {first}")
-        return m, first
+        return int(self.cfg.data.val_episodes_per_task), int(self.cfg.data.val_first_episode)
 
     def evaluation_seeds(self, n: int) -> list[int]:
-        """Test-split seed indices of this run's evaluation episodes."""
+        """Test-split seed indices of this run's evaluation episodes (kept inside the test split and
+        apart from other seeds' by experiments.validate.check_relations, before any stage)."""
         base = int(self.cfg.seed) * int(self.cfg.eval.seed_stride)
-        if n > int(self.cfg.eval.seed_stride):
-            raise ValueError(f"eval.episodes_per_task={n} exceeds eval.seed_stride")
         return [base + i for i in range(n)]
 
 

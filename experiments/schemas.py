@@ -5,16 +5,31 @@ The primary config (``conf/config.yaml``) starts its defaults list with ``base_c
 (``sed=1``, ``eval.episodes_per_task=many``, ``mode=trian``) fails when Hydra composes the config,
 before any work starts. Keys added with ``+`` and the component groups (decomposer, encoder, ...),
 which are ``_target_`` nodes, are checked by ``experiments.validate.validate_config`` (keys against
-the target's signature, values against its type hints) before any stage runs.
+the target's signature, values against its type hints) before any stage runs. Every numeric field
+declares its accepted range here, beside its default (:func:`ranged`); the validator checks them all.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field
 from enum import Enum
 from typing import Any
 
 from hydra.core.config_store import ConfigStore
+
+from envs.generate import SPLIT_SEEDS
+
+# The field metadata key of a range: (low, high), inclusive, None for an open end.
+RANGE = "range"
+# Episodes of one task in one split: each split's seed range holds this many.
+SPLIT_SIZE = min(len(r) for r in SPLIT_SEEDS.values())
+
+
+def ranged(default: Any = MISSING, *, low: float | None = None, high: float | None = None,
+           default_factory: Any = MISSING) -> Any:
+    """A dataclass field whose number (each number, for a list; null passes) lies in ``[low, high]``."""
+    given = {"default": default} if default_factory is MISSING else {"default_factory": default_factory}
+    return field(**given, metadata={RANGE: (low, high)})
 
 
 class Mode(Enum):
@@ -31,11 +46,14 @@ class Mode(Enum):
 class DataConfig:
     """How many scripted demonstrations each stage gets."""
 
-    train_episodes_per_task: int = 4  # expert-segmented: policy training set and sub-task database
-    val_episodes_per_task: int = 3  # M: demonstrations decomposed to finetune the planner
+    # expert-segmented: policy training set and sub-task database
+    train_episodes_per_task: int = ranged(4, low=1, high=SPLIT_SIZE)
+    # M: demonstrations decomposed to finetune the planner
+    val_episodes_per_task: int = ranged(3, low=1, high=SPLIT_SIZE)
     # Index of the first of those M validation demos: abl_demos's disjoint single-demo sets (0, 1, 2).
-    val_first_episode: int = 0
-    pretrain_episodes_per_task: int = 4  # base planner pretraining (pretraining tasks only)
+    val_first_episode: int = ranged(0, low=0, high=SPLIT_SIZE - 1)
+    # base planner pretraining (pretraining tasks only)
+    pretrain_episodes_per_task: int = ranged(4, low=1, high=SPLIT_SIZE)
     # Tasks the base planner is pretrained on; null = the env's pretraining tasks (never evaluated).
     pretrain_tasks: list[str] | None = None
     # Tasks whose training sub-tasks fill the database; null = the run's evaluation tasks.
@@ -47,12 +65,12 @@ class DataConfig:
 class EvalConfig:
     """Closed-loop evaluation: seeds come from the env's test split, disjoint from demo seeds."""
 
-    episodes_per_task: int = 2
+    episodes_per_task: int = ranged(2, low=1, high=SPLIT_SIZE)
     # planner/policy steps (one sub-task each) before an episode counts as failed; RACER's 25
     # leaves room to replan after the longest expert plan here (stack_blocks with 3 blocks: 18)
-    max_steps: int = 25
+    max_steps: int = ranged(25, low=1)
     # Evaluation episode i of run seed s uses test-split seed index s * seed_stride + i.
-    seed_stride: int = 1000
+    seed_stride: int = ranged(1000, low=1)
 
 
 @dataclass
@@ -60,18 +78,18 @@ class PlannerEvalConfig:
     """mode=planner_eval: which held-out episodes score the planner."""
 
     # test-split expert demos per evaluation task; every segment start is one scored query
-    episodes_per_task: int = 10
+    episodes_per_task: int = ranged(10, low=1, high=SPLIT_SIZE)
 
 
 @dataclass
 class SpeedConfig:
     """The solver scaling measurement (mode=speed)."""
 
-    frames: list[int] = field(default_factory=lambda: [100, 200, 500, 1000])
-    max_len: int = 100
-    database_size: int = 2000
-    dim: int = 256
-    repeats: int = 1
+    frames: list[int] = ranged(default_factory=lambda: [100, 200, 500, 1000], low=2)
+    max_len: int = ranged(100, low=1)
+    database_size: int = ranged(2000, low=1)
+    dim: int = ranged(256, low=1)
+    repeats: int = ranged(1, low=1)
 
 
 @dataclass
@@ -96,13 +114,14 @@ class PathsConfig:
 class RunConfig:
     """Top-level schema of ``conf/config.yaml``."""
 
-    seed: int = 0
+    # Evaluation seeds must stay in the test split too: experiments.validate.check_relations.
+    seed: int = ranged(0, low=0)
     mode: Mode = Mode.hierarchical
     # Evaluation tasks; null = every evaluation task of the env (pretraining tasks excluded).
     tasks: list[str] | None = None
     views: list[str] = field(default_factory=lambda: ["front", "wrist"])
     # Torch threads per job; null = all cores for a single run, cores / parallel jobs in a sweep.
-    threads: int | None = None
+    threads: int | None = ranged(None, low=1)
     # An unavailable component (e.g. an encoder without its weights) records a skipped run
     # with the reason instead of failing (abl_encoder sweeps over encoders that may be absent).
     skip_unavailable: bool = False

@@ -1,4 +1,5 @@
-"""Check a composed config before any stage runs: every key known, every value of the expected type.
+"""Check a composed config before any stage runs: every key known, every value of the expected type
+and within its range.
 
 Hydra's typed schema (``experiments.schemas.RunConfig``) covers the run's own keys but accepts keys
 added with ``+`` and cannot see inside the component groups, whose options are ``_target_`` nodes.
@@ -6,6 +7,10 @@ Here each key is checked against what consumes it: the schema's fields for the r
 signature of the ``_target_`` (its parameters and type hints; a dataclass-typed parameter given as a
 mapping is checked field by field) for component nodes. The first problem is reported with its
 dotted key, the expected type and the value given (``decomposer.alpha: expected float, got 'abc'``).
+Numbers are checked against the ranges their dataclass fields declare (``experiments.schemas.ranged``:
+``eval.episodes_per_task: expected >= 1 and <= 10000, got -1``), a run's seeds against the test
+split (:func:`check_relations`), and a dataclass-typed value is built once here so its own checks
+(``__post_init__``) fail now, not when a stage builds it.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ import dataclasses
 import enum
 import functools
 import inspect
+import math
 import os
 import types
 import typing
@@ -130,8 +136,41 @@ def _check_value(path: str, value: Any, hint: Any) -> None:
     dc = _dataclass_in(hint)
     if dc is not None and isinstance(value, DictConfig) and not _is_component(value):
         check_fields(path, value, dc)
+        check_builds(path, dc, value)
     elif _is_component(value):
         check_component_node(path, value)
+
+
+def check_range(path: str, value: Any, fld: dataclasses.Field) -> None:
+    """``value`` (each item, for a list; null passes) within the range ``fld`` declares, if any."""
+    from experiments.schemas import RANGE
+
+    bounds = fld.metadata.get(RANGE)
+    if bounds is None or value is None:
+        return
+    low, high = bounds
+    many = isinstance(value, ListConfig | list | tuple)
+    for v in value if many else [value]:
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            continue  # null, or a type error that _check_value reports
+        if not (math.isfinite(v) and (low is None or v >= low) and (high is None or v <= high)):
+            wanted = " and ".join(t for t in (low is not None and f">= {low}", high is not None and f"<= {high}") if t)
+            raise ConfigError(f"{path}: expected {'every item ' if many else ''}{wanted}, got {_fmt(value)}")
+
+
+def check_builds(path: str, cls: type, node: DictConfig) -> None:
+    """Build the dataclass ``cls`` from ``node`` so that its own checks (``__post_init__``) run now."""
+    try:
+        values = OmegaConf.to_container(node, resolve=True)
+        obj = {k: v for k, v in values.items() if k not in HYDRA_KEYS}
+    except Exception:  # an interpolation that resolves only later (e.g. hydra:runtime): checked then
+        return
+    try:
+        cls(**obj)
+    except ValueError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    except Exception:  # a field that needs a built object, not a mapping: checked when it is built
+        return
 
 
 def _dataclass_in(hint: Any) -> type | None:
@@ -152,7 +191,9 @@ def check_fields(path: str, node: DictConfig, schema: type) -> None:
         if key not in fields:
             raise ConfigError(f"{where}: unknown key (given {_fmt(node[key])}); "
                               f"{path or 'the config'} has {sorted(fields)}")
-        _check_value(where, _raw(node, key), hints.get(key, Any))
+        value = _raw(node, key)
+        _check_value(where, value, hints.get(key, Any))
+        check_range(where, value, fields[key])
 
 
 def _raw(node: DictConfig, key: Any) -> Any:
@@ -180,6 +221,8 @@ def check_component_node(path: str, node: DictConfig) -> None:
         return
     open_kwargs = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
     hints = _hints(fn)
+    # A dataclass target (policy.train: TrainConfig): its fields' ranges, then its own checks.
+    own_fields = {f.name: f for f in dataclasses.fields(fn)} if inspect.isclass(fn) and dataclasses.is_dataclass(fn) else {}
     for key in node:
         if key in HYDRA_KEYS:
             continue
@@ -189,7 +232,12 @@ def check_component_node(path: str, node: DictConfig) -> None:
                 continue
             raise ConfigError(f"{where}: unknown option (given {_fmt(node[key])}) of {node._target_}; "
                               f"it takes {sorted(p for p in params if p != 'self')}")
-        _check_value(where, _raw(node, key), hints.get(key, params[key].annotation))
+        value = _raw(node, key)
+        _check_value(where, value, hints.get(key, params[key].annotation))
+        if key in own_fields:
+            check_range(where, value, own_fields[key])
+    if own_fields:
+        check_builds(path, fn, node)
 
 
 def validate_config(cfg: DictConfig, schema: type | None = None,
@@ -199,7 +247,7 @@ def validate_config(cfg: DictConfig, schema: type | None = None,
 
     schema = schema or RunConfig
     components = COMPONENT_GROUPS if components is None else components
-    fields = {f.name for f in dataclasses.fields(schema)}
+    fields = {f.name: f for f in dataclasses.fields(schema)}
     hints = typing.get_type_hints(schema)
     keys = [k for k in cfg if k != "hydra"]
     for key in keys:  # unknown keys first: no component module needs importing to report them
@@ -217,3 +265,22 @@ def validate_config(cfg: DictConfig, schema: type | None = None,
                                   f"got {_fmt(value)}")
             continue
         _check_value(str(key), value, hints.get(key, Any))
+        check_range(str(key), value, fields[key])
+    if schema is RunConfig:
+        check_relations(cfg)
+
+
+def check_relations(cfg: DictConfig) -> None:
+    """Ranges two keys make together: a closed-loop run's evaluation episodes (test-split indices
+    ``seed * eval.seed_stride + i``) lie inside the test split and apart from other seeds' episodes."""
+    from experiments.schemas import SPLIT_SIZE
+
+    if str(OmegaConf.select(cfg, "mode")).split(".")[-1] != "hierarchical":
+        return
+    n, stride, seed = int(cfg.eval.episodes_per_task), int(cfg.eval.seed_stride), int(cfg.seed)
+    if n > stride:
+        raise ConfigError(f"eval.episodes_per_task: expected <= eval.seed_stride={stride} (each seed evaluates "
+                          f"its own {stride} test episodes), got {n}")
+    if seed * stride + n > SPLIT_SIZE:
+        raise ConfigError(f"seed: expected <= {(SPLIT_SIZE - n) // stride} with eval.seed_stride={stride} and "
+                          f"eval.episodes_per_task={n} (the test split holds {SPLIT_SIZE} episodes), got {seed}")
