@@ -2,7 +2,8 @@
 
 Thin on purpose: Hydra composes the config, ``experiments.pipeline.run`` does the work and returns
 its summary; the main metric (average success, or mIoU for decomposition-only runs) is returned so
-sweepers can use it.
+sweepers can use it. Bad input (a config value, an unwritable output folder) is one line and exit
+status 2; Ctrl-C and SIGTERM are one line after the cleanups, exit 130 and 143.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ import hydra
 from omegaconf import DictConfig
 
 import experiments.schemas  # noqa: F401  (registers the typed schema `base_config`)
+from experiments.interrupts import run_stoppable
+from rdd.errors import InputError
 
 log = logging.getLogger("run")
 
@@ -26,6 +29,11 @@ def main(cfg: DictConfig) -> float | None:
 
     try:
         summary = run(cfg)
+    except InputError as exc:
+        # Bad input (a config value, a data file): one line saying what to fix.
+        log.debug("traceback of the failure", exc_info=True)
+        log.error("error: %s", exc)
+        raise SystemExit(2) from None
     except Exception as exc:
         # One line on the terminal; the traceback goes to the run's log file only (DEBUG).
         out = _output_dir()
@@ -69,4 +77,5 @@ if __name__ == "__main__":
         print(help_text())
         sys.exit(0)
     check_launcher(sys.argv[1:])
-    main()
+    # Ctrl-C and SIGTERM: one line after the cleanups (locks, temporary folders), exit 130 / 143.
+    sys.exit(run_stoppable(main))

@@ -70,7 +70,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     tracker = Tracker(cfg.wandb, resolved, out_dir,
                       name=f"{choices.get('experiment', 'run')}-{results['label']}-s{cfg.seed}")
     t_start = time.perf_counter()
-    cache = StageCache(Path(cfg.paths.cache_dir))
+    cache = StageCache.for_run(cfg.paths.cache_dir)
     try:
         if mode == "speed":
             from experiments.speed import measure_speed
@@ -105,6 +105,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         write_json_atomic(out_dir / RESULTS_FILE, results)
         tracker.log(tracker_metrics(results))
         tracker.finish()
+        cache.close()
     summary = {
         "output_dir": str(out_dir),
         "status": results["status"],

@@ -7,7 +7,9 @@ Outputs are built in a temporary folder and renamed into place (:func:`rdd.atomi
 job killed mid-stage leaves no entry a later job could take for a result. A per-key lock file
 (:class:`experiments.locks.FileLock`: owner host/pid, heartbeat, stale-lock takeover; no ``flock``, so
 it holds on NFS-like shared filesystems too) makes concurrent jobs, local or on a cluster, that need
-the same stage build it once: the others wait and take the finished entry.
+the same stage build it once: the others wait and take the finished entry. A cache folder that
+cannot be written does not stop a run: :meth:`StageCache.for_run` then builds the run's stages in a
+temporary folder, removed when the run ends, and says so in one warning line.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import hashlib
 import json
 import logging
 import shutil
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -25,7 +28,7 @@ from typing import Any
 
 from experiments.code_keys import stage_code_key
 from experiments.locks import HEARTBEAT_S, STALE_AFTER_S, FileLock
-from rdd.atomic import TargetExistsError, atomic_dir, write_json_atomic
+from rdd.atomic import TargetExistsError, atomic_dir, check_writable, write_json_atomic
 
 __all__ = ["StageCache", "StageTiming", "canonical", "read_json", "spec_key",
            "stage_code_key", "write_json_atomic"]
@@ -88,9 +91,28 @@ class StageCache:
     timings: dict[str, StageTiming] = field(default_factory=dict)
     heartbeat_s: float = HEARTBEAT_S
     stale_after_s: float = STALE_AFTER_S
+    temporary: bool = False  # a folder of this run only (the shared one could not be written)
 
     def __post_init__(self) -> None:
         self.root = Path(self.root)
+
+    @classmethod
+    def for_run(cls, root: str | Path) -> StageCache:
+        """The cache at ``root``, or, when that folder cannot be written (read-only, no permission),
+        a temporary one for this run: nothing is reused or kept, and one warning line says so."""
+        try:
+            check_writable(Path(root) / SPEC_FILE)  # what a lock or an entry would need: a new file there
+        except OSError as exc:
+            tmp = Path(tempfile.mkdtemp(prefix="rdd-stage-cache-"))
+            log.warning("stage cache %s cannot be written (%s): this run builds its stages in %s, removed when "
+                        "it ends, so nothing is reused or kept", root, exc.strerror, tmp)
+            return cls(tmp, temporary=True)
+        return cls(Path(root))
+
+    def close(self) -> None:
+        """Remove a temporary cache (:meth:`for_run`); a shared one is kept."""
+        if self.temporary:
+            shutil.rmtree(self.root, ignore_errors=True)
 
     def path(self, stage: str, key: str) -> Path:
         """Directory of a finished stage entry."""

@@ -29,10 +29,12 @@ from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from rdd.errors import InputError
+
 HYDRA_KEYS = {"_target_", "_partial_", "_recursive_", "_convert_", "_args_"}
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """A key of the composed config is unknown or its value has the wrong type."""
 
 

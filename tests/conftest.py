@@ -2,11 +2,13 @@
 
 ``RDD_TEST_DATA`` names a folder laid out as ``rlbench/open_drawer/all_variations/episodes/episodeN``
 (RLBench's own format) and ``lerobot/<dataset>`` (LeRobot v2.1 / v3.0); see docs/testing.md.
+Also ``unwritable``: a folder this process cannot create files in, for the tests of outputs.
 """
 
 from __future__ import annotations
 
 import os
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -29,3 +31,23 @@ def real_data() -> Callable[[str], Path]:
         return path
 
     return find
+
+
+@pytest.fixture
+def unwritable(tmp_path) -> Path:
+    """A folder this process cannot create files in (root ignores modes: then /sys, mounted read-only)."""
+    if os.geteuid() != 0:
+        folder = tmp_path / "ro"
+        folder.mkdir()
+        folder.chmod(0o555)
+        yield folder
+        folder.chmod(0o755)
+        return
+    try:
+        fd, probe = tempfile.mkstemp(dir="/sys")
+    except OSError:
+        yield Path("/sys")
+        return
+    os.close(fd)
+    os.unlink(probe)
+    pytest.skip("no folder here refuses a new file to root")

@@ -5,34 +5,12 @@ work, naming the output and never the hidden temporary file."""
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import pytest
 
 from rdd.atomic import check_writable, write_text_atomic
 from rdd.cli import main
-
-
-@pytest.fixture
-def unwritable(tmp_path) -> Path:
-    """A folder this process cannot create files in (root ignores modes: then /sys, mounted read-only)."""
-    if os.geteuid() != 0:
-        folder = tmp_path / "ro"
-        folder.mkdir()
-        folder.chmod(0o555)
-        yield folder
-        folder.chmod(0o755)
-        return
-    try:
-        fd, probe = tempfile.mkstemp(dir="/sys")
-    except OSError:
-        yield Path("/sys")
-        return
-    os.close(fd)
-    os.unlink(probe)
-    pytest.skip("no folder here refuses a new file to root")
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
