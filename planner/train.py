@@ -26,6 +26,7 @@ from planner.dataset import (
     examples_from_episode,
 )
 from planner.models import (
+    build_pretrained_lm_model,
     build_processor,
     build_tiny_model,
     load_model,
@@ -52,6 +53,26 @@ def _fresh_dir(out_dir: str | Path) -> Path:
         raise FileExistsError(f"{out} already holds a trained planner ({CONFIG_FILE}); pick another folder")
     out.mkdir(parents=True, exist_ok=True)
     return out
+
+
+def answer_loss(model, batch: dict) -> torch.Tensor:
+    """Mean cross-entropy over the answer tokens, with logits computed only from the first answer on.
+
+    The output layer is the largest matrix of a pretrained language model (49,152 words); the
+    prompt's positions need no logits, so the head runs only where the loss reads it.
+    """
+    batch = dict(batch)
+    labels = batch.pop("labels")
+    seq = labels.shape[1]
+    answer = labels != -100
+    if not bool(answer.any()):
+        raise ValueError("a training batch without answer tokens")
+    first = int(torch.where(answer.any(0))[0][0])  # the earliest answer position in the batch
+    keep = seq - first + 1  # logits at positions first-1 .. seq-1 predict tokens first .. seq-1
+    logits = model(**batch, logits_to_keep=keep).logits
+    target = labels[:, seq - keep + 1:]
+    return torch.nn.functional.cross_entropy(logits[:, :-1].reshape(-1, logits.shape[-1]).float(),
+                                             target.reshape(-1), ignore_index=-100)
 
 
 def _train(model, processor, examples: Sequence[PlannerExample], settings: TrainSettings,
@@ -90,7 +111,7 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
         epoch_loss, n = 0.0, 0
         for batch in loader:
             with accelerator.accumulate(model):
-                loss = model(**batch).loss
+                loss = answer_loss(model, batch)
                 accelerator.backward(loss)
                 if accelerator.sync_gradients:
                     accelerator.clip_grad_norm_(params, settings.max_grad_norm)
@@ -146,12 +167,25 @@ def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_di
     """
     if cfg.kind == "llava_next_8b":
         return resolve_checkpoint(cfg)  # pretrained elsewhere; we only finetune it
-    tokenizer = train_tokenizer(tokenizer_corpus(examples) + list(extra_corpus), cfg.vocab_size)
-    processor = build_processor(cfg, tokenizer)
     torch.manual_seed(cfg.pretrain.seed)
-    model = build_tiny_model(cfg, tokenizer)
-    out = _fresh_dir(out_dir)
-    log = _train(model, processor, examples, cfg.pretrain, f"pretrain {cfg.kind}", progress)
+    if cfg.kind == "smollm2_llava":
+        model, processor = build_pretrained_lm_model(cfg)
+        out = _fresh_dir(out_dir)
+        # LLaVA's two stages: the projector alone aligns the image tokens to the pretrained
+        # language model, then projector and language model are tuned on the instructions
+        for name, p in model.named_parameters():
+            p.requires_grad_("multi_modal_projector" in name)
+        align = _train(model, processor, examples, cfg.align, "align projector", progress)
+        for name, p in model.named_parameters():
+            p.requires_grad_("vision_tower" not in name)
+        log = {"align": align, **_train(model, processor, examples, cfg.pretrain,
+                                        f"pretrain {cfg.kind}", progress)}
+    else:
+        tokenizer = train_tokenizer(tokenizer_corpus(examples) + list(extra_corpus), cfg.vocab_size)
+        processor = build_processor(cfg, tokenizer)
+        model = build_tiny_model(cfg, tokenizer)
+        out = _fresh_dir(out_dir)
+        log = _train(model, processor, examples, cfg.pretrain, f"pretrain {cfg.kind}", progress)
     save_model(model, processor, out)
     write_json_atomic(out / VOCABULARY_FILE, dict(slot_vocabulary or {}), dumps=_json_text)
     write_json_atomic(out / LOG_FILE, log, dumps=_json_text)
