@@ -148,6 +148,9 @@ class PlannerConfig:
                                                                          [128, 64], [128, 128]])
     checkpoint_path: str | None = None  # llava_next_8b: a local transformers-format directory
     dtype: str = "float32"
+    # numerics of the training steps (weights stay fp32): "float32", "bfloat16" (CPU/GPU autocast),
+    # or "auto": both timed on the first batch, the faster kept (which wins differs by machine)
+    train_dtype: str = "float32"
     max_new_tokens: int = 24
     view: str = "front"
     pretrain: TrainSettings = field(default_factory=TrainSettings)
@@ -162,6 +165,8 @@ class PlannerConfig:
             raise ValueError(f"planner kind {self.kind!r} unknown; choose from {MODEL_KINDS}")
         if self.dtype not in ("float32", "bfloat16", "float16"):
             raise ValueError(f"planner dtype {self.dtype!r}: use float32, bfloat16 or float16")
+        if self.train_dtype not in ("float32", "bfloat16", "auto"):
+            raise ValueError(f"planner train_dtype {self.train_dtype!r}: use float32, bfloat16 or auto")
         from planner.vision import EFFNET_CELL, EFFNET_RESOLUTION, VISION_TOWERS
 
         if self.vision_tower not in VISION_TOWERS:
@@ -213,6 +218,8 @@ class PlannerConfig:
             d.pop("vision_tower")  # keys of bases made before the option existed stay valid
         if not d["describe_scene"]:
             d.pop("describe_scene")
+        if d["train_dtype"] == "float32":
+            d.pop("train_dtype")  # keys of bases made before the option existed stay valid
         return d
 
 
