@@ -109,6 +109,11 @@ def generate(tasks, split: str, episodes: int, out: str | Path, workers: int = 1
         raise ValueError(f"unknown tasks {unknown}; known: {sorted(TASKS)}")
     if episodes < 1:
         raise ValueError(f"--episodes must be positive, got {episodes}")
+    from envs.gym_env import RLBenchStyleEnv
+
+    # the env's own ranges for the physics and camera options it shares with demo generation
+    RLBenchStyleEnv.check_options(image_size=image_size, render_images=render, ticks_per_frame=ticks_per_frame,
+                                  motion_timeout=motion_timeout)
     if max_failures is None:
         max_failures = default_max_failures(episodes)
     if max_failures < 0:

@@ -26,21 +26,35 @@ from envs.control import Controller
 from envs.expert import build_task, default_variation
 from envs.scene import CameraSpec, Scene
 from envs.tasks import get_task
+from rdd.checks import FLAG, CheckedOptions, number, whole
 
 
-class RLBenchStyleEnv(gym.Env):
-    """A task of the suite behind the gymnasium API."""
+class RLBenchStyleEnv(CheckedOptions, gym.Env):
+    """A task of the suite behind the gymnasium API.
+
+    Its options' ranges are ``OPTION_RULES`` (the constructor and ``check_options`` apply them;
+    demo generation, which takes the same physics options, too).
+    """
 
     metadata = {"render_modes": ["rgb_array"]}
+    OPTION_RULES = {"image_size": whole(8, 4096), "max_steps": whole(1), "render_images": FLAG,
+                    "ticks_per_frame": whole(1), "motion_timeout": number(0.0, exclusive_min=True)}
+
+    @classmethod
+    def option_owner(cls) -> str:
+        """``env`` (the config group and the harness's name for it)."""
+        return "env"
 
     def __init__(self, task: str, image_size: int = 128, max_steps: int = 30, render_images: bool = True,
                  ticks_per_frame: int = 12, motion_timeout: float = 3.0):
+        opts = self.check_options(image_size=image_size, max_steps=max_steps, render_images=render_images,
+                                  ticks_per_frame=ticks_per_frame, motion_timeout=motion_timeout)
         self.task_name = task
-        self.camera = CameraSpec(width=image_size, height=image_size)
+        self.camera = CameraSpec(width=opts["image_size"], height=opts["image_size"])
         self.render_images = render_images
-        self.max_steps = int(max_steps)
-        self.ticks_per_frame = int(ticks_per_frame)
-        self.motion_timeout = float(motion_timeout)
+        self.max_steps = opts["max_steps"]
+        self.ticks_per_frame = opts["ticks_per_frame"]
+        self.motion_timeout = opts["motion_timeout"]
         self.render_mode = "rgb_array"
         self._scene: Scene | None = None
         self.task = None

@@ -9,8 +9,10 @@ mapping is checked field by field) for component nodes. The first problem is rep
 dotted key, the expected type and the value given (``decomposer.alpha: expected float, got 'abc'``).
 Numbers are checked against the ranges their dataclass fields declare (``experiments.schemas.ranged``:
 ``eval.episodes_per_task: expected >= 1 and <= 10000, got -1``), a run's seeds against the test
-split (:func:`check_relations`), and a dataclass-typed value is built once here so its own checks
-(``__post_init__``) fail now, not when a stage builds it.
+split (:func:`check_relations`), a dataclass-typed value is built once here so its own checks
+(``__post_init__``) fail now, not when a stage builds it, and a component that declares its options'
+ranges (``check_options``, ``rdd.checks``: decomposers, indexes, the env) has them checked now
+(``decomposer.alpha: decomposer rdd: option alpha must be a finite number ..., got nan``).
 """
 
 from __future__ import annotations
@@ -160,19 +162,46 @@ def check_range(path: str, value: Any, fld: dataclasses.Field) -> None:
             raise ConfigError(f"{path}: expected {'every item ' if many else ''}{wanted}, got {_fmt(value)}")
 
 
-def check_builds(path: str, cls: type, node: DictConfig) -> None:
-    """Build the dataclass ``cls`` from ``node`` so that its own checks (``__post_init__``) run now."""
+def _options(node: DictConfig) -> dict[str, Any] | None:
+    """``node``'s options as plain values (null when an interpolation resolves only later, e.g.
+    hydra:runtime: checked then)."""
     try:
         values = OmegaConf.to_container(node, resolve=True)
-        obj = {k: v for k, v in values.items() if k not in HYDRA_KEYS}
-    except Exception:  # an interpolation that resolves only later (e.g. hydra:runtime): checked then
+    except Exception:
+        return None
+    return {k: v for k, v in values.items() if k not in HYDRA_KEYS}
+
+
+def _value_error(path: str, exc: ValueError) -> ConfigError:
+    """``exc`` as a config error naming the key at fault (``decomposer.alpha: ...``)."""
+    option = exc.option if isinstance(exc, InputError) else None
+    return ConfigError(f"{path}.{option}: {exc}" if option else f"{path}: {exc}")
+
+
+def check_builds(path: str, cls: type, node: DictConfig) -> None:
+    """Build the dataclass ``cls`` from ``node`` so that its own checks (``__post_init__``) run now."""
+    obj = _options(node)
+    if obj is None:
         return
     try:
         cls(**obj)
     except ValueError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
+        raise _value_error(path, exc) from None
     except Exception:  # a field that needs a built object, not a mapping: checked when it is built
         return
+
+
+def check_own_options(path: str, fn: Callable[..., Any], node: DictConfig) -> None:
+    """A component's own option checks (``check_options``, ``rdd.checks``): its declared ranges,
+    applied to the config's values without building it or its runtime objects."""
+    checker = getattr(fn, "check_options", None)
+    opts = _options(node) if callable(checker) else None
+    if opts is None:
+        return
+    try:
+        checker(**opts)
+    except ValueError as exc:
+        raise _value_error(path, exc) from None
 
 
 def _dataclass_in(hint: Any) -> type | None:
@@ -240,6 +269,7 @@ def check_component_node(path: str, node: DictConfig) -> None:
             check_range(where, value, own_fields[key])
     if own_fields:
         check_builds(path, fn, node)
+    check_own_options(path, fn, node)
 
 
 def validate_config(cfg: DictConfig, schema: type | None = None,

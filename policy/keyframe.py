@@ -14,7 +14,7 @@ import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -31,6 +31,7 @@ from policy.training import (
     train_network,
 )
 from rdd.atomic import write_json_atomic
+from rdd.checks import FLAG, check_fields, whole
 from rdd.data.episode import Episode
 from rdd.labeler import Labeler
 
@@ -43,6 +44,10 @@ class DatasetConfig:
 
     frames_per_segment: int = 8  # evenly spaced, always including the segment's first frame
     skip_failed: bool = True  # drop episodes whose expert did not succeed
+    OPTION_RULES: ClassVar = {"frames_per_segment": whole(1), "skip_failed": FLAG}
+
+    def __post_init__(self) -> None:
+        check_fields(self, "policy data", self.OPTION_RULES)
 
 
 def _materialise(episode: Episode) -> Episode:

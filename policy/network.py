@@ -13,10 +13,13 @@ language rather than memorise a task.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import ClassVar
 
 import torch
 from torch import nn
 from torch.nn import functional as F
+
+from rdd.checks import FLAG, check_fields, number, whole
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,15 @@ class NetConfig:
     # default: the expert picks between them by reachability, which the net learns from the scene,
     # and choosing the other one often runs the arm into joint limits or the cabinet.
     symmetric_gripper: bool = False
+    # each field's range (checked when built: the harness builds it while validating the config)
+    OPTION_RULES: ClassVar = {
+        "text_dim": whole(1), "proprio_dim": whole(1), "state_dim": whole(1), "hidden": whole(1),
+        "pos_sigma": number(0.0, exclusive_min=True), "rot_kappa": number(0.0, exclusive_min=True),
+        "gripper_weight": number(0.0), "match_scale": number(0.0, exclusive_min=True), "symmetric_gripper": FLAG,
+    }
+
+    def __post_init__(self) -> None:
+        check_fields(self, "policy net", self.OPTION_RULES)
 
     def to_dict(self) -> dict:
         """Plain dict (for checkpoints and cache keys)."""

@@ -10,6 +10,7 @@ import sys
 import time
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -17,6 +18,7 @@ from tqdm import tqdm
 
 from policy.network import KeyframeNet, NetConfig, gripper_equivalent
 from rdd.atomic import atomic_file
+from rdd.checks import check_fields, number, whole
 
 log = logging.getLogger(__name__)
 
@@ -85,9 +87,17 @@ class TrainConfig:
     # from NetConfig.rot_kappa to this over the rest of the schedule; None keeps it constant.
     kappa_end: float | None = None
 
+    # each field's range (checked when built: the harness builds it while validating the config)
+    OPTION_RULES: ClassVar = {
+        "epochs": whole(1), "min_steps": whole(0), "batch_size": whole(1), "lr": number(0.0, exclusive_min=True),
+        "weight_decay": number(0.0), "seed": whole(0), "threads": whole(1),
+        "max_seconds": number(0.0, exclusive_min=True, allow_none=True),
+        "sigma_start": number(0.0, exclusive_min=True), "anneal_fraction": number(0.0, 1.0),
+        "kappa_end": number(0.0, exclusive_min=True, allow_none=True),
+    }
+
     def __post_init__(self) -> None:
-        if self.kappa_end is not None and self.kappa_end <= 0:
-            raise ValueError(f"policy train.kappa_end must be > 0 (or null), got {self.kappa_end}")
+        check_fields(self, "policy train", self.OPTION_RULES)
 
 
 def train_network(data: KeyframeDataset, net_cfg: NetConfig, train_cfg: TrainConfig,

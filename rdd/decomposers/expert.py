@@ -9,8 +9,9 @@ from typing import Literal
 
 import numpy as np
 
+from rdd.checks import number, one_of
 from rdd.data.episode import Episode
-from rdd.decomposers.base import Decomposer, Decomposition, check_choice, check_float
+from rdd.decomposers.base import Decomposer, Decomposition
 from rdd.segments import keyframes_to_segments
 
 
@@ -136,6 +137,11 @@ class ExpertDecomposer(Decomposer):
     """
 
     name = "expert"
+    OPTION_RULES = {
+        "stopping_delta": number(0.0), "velocity_source": one_of("auto", "joint", "ee"),
+        "ee_stopping_delta": number(0.0, allow_none=True), "stop_test": one_of(*STOP_TESTS),
+        "stopping_fraction": number(0.0, 1.0), "smooth_s": number(0.0), "min_stop_s": number(0.0),
+    }
 
     def __init__(
         self,
@@ -147,15 +153,13 @@ class ExpertDecomposer(Decomposer):
         smooth_s: float = 0.1,
         min_stop_s: float = 0.2,
     ):
-        owner = "decomposer expert"
-        self.velocity_source = check_choice(owner, "velocity_source", velocity_source, ("auto", "joint", "ee"))
-        self.stopping_delta = check_float(owner, "stopping_delta", stopping_delta, minimum=0.0)
-        self.ee_stopping_delta = check_float(owner, "ee_stopping_delta", ee_stopping_delta, minimum=0.0,
-                                             allow_none=True)
-        self.stop_test = check_choice(owner, "stop_test", stop_test, STOP_TESTS)
-        self.stopping_fraction = check_float(owner, "stopping_fraction", stopping_fraction, 0.0, 1.0)
-        self.smooth_s = check_float(owner, "smooth_s", smooth_s, minimum=0.0)
-        self.min_stop_s = check_float(owner, "min_stop_s", min_stop_s, minimum=0.0)
+        opts = self.check_options(
+            velocity_source=velocity_source, stopping_delta=stopping_delta, ee_stopping_delta=ee_stopping_delta,
+            stop_test=stop_test, stopping_fraction=stopping_fraction, smooth_s=smooth_s, min_stop_s=min_stop_s)
+        self.velocity_source, self.stop_test = opts["velocity_source"], opts["stop_test"]
+        self.stopping_delta, self.ee_stopping_delta = opts["stopping_delta"], opts["ee_stopping_delta"]
+        self.stopping_fraction, self.smooth_s, self.min_stop_s = (
+            opts["stopping_fraction"], opts["smooth_s"], opts["min_stop_s"])
 
     def _velocities(self, episode: Episode) -> tuple[np.ndarray, float, str]:
         use_joint = self.velocity_source == "joint" or (

@@ -23,9 +23,11 @@ from typing import Any
 import numpy as np
 
 from rdd import scoring
+from rdd.checks import FLAG, check_options, number, one_of, whole
 from rdd.data.episode import Episode
 from rdd.database import SubtaskDatabase
-from rdd.decomposers.base import Decomposer, Decomposition, check_choice, check_float, check_int
+from rdd.decomposers.base import Decomposer, Decomposition
+from rdd.decomposers.uvd import UVD_RULES
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import DEFAULT_VIEWS, episode_frame_vectors
 from rdd.errors import InputError
@@ -57,6 +59,33 @@ class RDDDecomposer(Decomposer):
     """
 
     name = "rdd"
+    OPTION_RULES = {
+        "mode": one_of(*MODES), "alpha": number(0.0, scoring.ALPHA_MAX),
+        "beta": number(0.0, scoring.ALPHA_MAX, allow_none=True), "min_len": whole(1),
+        "max_len": whole(1, allow_none=True), "use_calibration": FLAG,
+    }
+
+    @classmethod
+    def check_options(cls, **options: Any) -> dict[str, Any]:
+        """The options' ranges (those left out: the calibration's or the paper's, checked when built),
+        ``max_len >= min_len`` when both are given, ``uvd_options`` and ``index_options`` (the index's own)."""
+        owner = cls.option_owner()
+        opts = super().check_options(**options)
+        low, high = opts.get("min_len"), opts.get("max_len")
+        if low is not None and high is not None and high < low:
+            raise InputError(f"{owner}: option max_len must be null (unbounded) or >= min_len={low}, "
+                             f"got {options['max_len']!r}", option="max_len")
+        if opts.get("uvd_options"):
+            opts["uvd_options"] = check_options(owner, UVD_RULES, dict(opts["uvd_options"]), prefix="uvd_options.")
+        index = opts.get("index", "exact")
+        if opts.get("index_options") and isinstance(index, str):
+            from rdd.registry import component
+
+            try:
+                component("index", index).check_options(**opts["index_options"])
+            except InputError as exc:
+                raise InputError(f"{owner}: index_options: {exc}", option=f"index_options.{exc.option}") from None
+        return opts
 
     def __init__(
         self,
@@ -76,27 +105,23 @@ class RDDDecomposer(Decomposer):
     ) -> None:
         if not isinstance(database, SubtaskDatabase):
             raise TypeError(f"database must be a SubtaskDatabase, got {type(database).__name__}")
-        owner = "decomposer rdd"
-        check_choice(owner, "mode", mode, MODES)
+        self.check_options(mode=mode)
         given = {k: v for k, v in (("alpha", alpha), ("min_len", min_len), ("max_len", max_len))
                  if v is not UNSET}
         base = database.calibrated_options() if use_calibration else PAPER_DEFAULTS
-        opts = {**PAPER_DEFAULTS, **base, **given}
+        merged = {**PAPER_DEFAULTS, **base, **given}
         self.option_source = {k: ("given" if k in given else "calibration" if use_calibration else "paper")
                               for k in PAPER_DEFAULTS}
-        self.alpha = check_float(owner, "alpha", opts["alpha"], 0.0, scoring.ALPHA_MAX)
-        self.beta = check_float(owner, "beta", DEFAULT_BETA[mode] if beta is None else beta, 0.0, scoring.ALPHA_MAX)
-        self.min_len = check_int(owner, "min_len", opts["min_len"], minimum=1)
-        self.max_len = check_int(owner, "max_len", opts["max_len"], minimum=1, allow_none=True)
-        if self.max_len is not None and self.max_len < self.min_len:
-            raise InputError(f"{owner}: option max_len must be null (unbounded) or >= min_len={self.min_len}, "
-                             f"got {opts['max_len']!r}", option="max_len")
+        opts = self.check_options(alpha=merged["alpha"], beta=DEFAULT_BETA[mode] if beta is None else beta,
+                                  min_len=merged["min_len"], max_len=merged["max_len"], uvd_options=uvd_options)
+        self.alpha, self.beta = opts["alpha"], opts["beta"]
+        self.min_len, self.max_len = opts["min_len"], opts["max_len"]
         self.mode = mode
         self.database = database
         self.encoder = encoder
         self.views = tuple(views)
         self.normalize_views = bool(database.meta.get("normalize_views", True))
-        self.uvd_options = dict(uvd_options or {})
+        self.uvd_options = dict(opts["uvd_options"] or {})
         self.cache = cache
         if encoder is not None:
             database.check_compatible(encoder, self.views)

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from rdd.checks import FLAG, whole
 from rdd.data.episode import Episode
-from rdd.decomposers.base import Decomposer, Decomposition, check_choice, check_int
+from rdd.decomposers.base import Decomposer, Decomposition
 from rdd.segments import Segment
 
 
@@ -32,11 +33,13 @@ class UniformDecomposer(Decomposer):
     """Cuts every episode into ``n_segments`` equal parts (as even as integer frames allow)."""
 
     name = "uniform"
+    OPTION_RULES = {"n_segments": whole(1), "clip_to_length": FLAG}
 
     def __init__(self, n_segments: int = 10, clip_to_length: bool = False):
-        self.n_segments = check_int("decomposer uniform", "n_segments", n_segments, minimum=1)
+        opts = self.check_options(n_segments=n_segments, clip_to_length=clip_to_length)
+        self.n_segments = opts["n_segments"]
         # When set, an episode shorter than n_segments gets one frame per segment instead of an error.
-        self.clip_to_length = check_choice("decomposer uniform", "clip_to_length", clip_to_length, (True, False))
+        self.clip_to_length = opts["clip_to_length"]
 
     def decompose(self, episode: Episode) -> Decomposition:
         """Equal segments of ``episode``."""

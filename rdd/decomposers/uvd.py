@@ -7,18 +7,24 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from rdd.checks import FLAG, number, whole
 from rdd.data.episode import Episode
-from rdd.decomposers.base import Decomposer, Decomposition, check_choice, check_float, check_int
+from rdd.decomposers.base import Decomposer, Decomposition
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import DEFAULT_VIEWS, episode_frame_vectors
 from rdd.milestones import uvd_milestones
 from rdd.segments import keyframes_to_segments
+
+# UVD's own options (also RDD's uvd_options, which reach the same milestone search).
+UVD_RULES = {"min_interval": whole(1), "gamma": number(0.0, exclusive_min=True), "normalize_curve": FLAG,
+             "window_length": whole(1, allow_none=True)}
 
 
 class UVDDecomposer(Decomposer):
     """UVD applied to an episode's frame vectors (per-view L2-normalised embeddings, concatenated)."""
 
     name = "uvd"
+    OPTION_RULES = UVD_RULES
 
     def __init__(
         self,
@@ -32,11 +38,10 @@ class UVDDecomposer(Decomposer):
     ):
         self.encoder = encoder
         self.views = tuple(views)
-        owner = "decomposer uvd"
-        self.min_interval = check_int(owner, "min_interval", min_interval, minimum=1)
-        self.gamma = check_float(owner, "gamma", gamma, minimum=0.0, exclusive_min=True)
-        self.normalize_curve = check_choice(owner, "normalize_curve", normalize_curve, (True, False))
-        self.window_length = check_int(owner, "window_length", window_length, minimum=1, allow_none=True)
+        opts = self.check_options(min_interval=min_interval, gamma=gamma, normalize_curve=normalize_curve,
+                                  window_length=window_length)
+        self.min_interval, self.gamma = opts["min_interval"], opts["gamma"]
+        self.normalize_curve, self.window_length = opts["normalize_curve"], opts["window_length"]
         self.cache = cache
 
     def decompose_embeddings(self, frame_vectors: np.ndarray) -> Decomposition:

@@ -22,8 +22,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from rdd.checks import check_options, number, whole
 from rdd.data.episode import Episode
 from rdd.decomposers.base import Decomposer, Decomposition
+from rdd.errors import InputError
 from rdd.segments import keyframes_to_segments
 
 log = logging.getLogger(__name__)
@@ -105,6 +107,8 @@ class OpenAIChatBackend:
     """An OpenAI-compatible chat-completions endpoint (``{base_url}/chat/completions``)."""
 
     name = "openai"
+    OPTION_RULES = {"timeout": number(0.0, exclusive_min=True), "retries": whole(0), "backoff": number(0.0),
+                    "max_tokens": whole(1), "temperature": number(0.0, 2.0)}
 
     def __init__(
         self,
@@ -121,16 +125,14 @@ class OpenAIChatBackend:
             raise ValueError("the openai VLM backend needs base_url (e.g. http://127.0.0.1:8000/v1)")
         if not model:
             raise ValueError("the openai VLM backend needs model (the served model's name)")
-        if int(retries) < 0 or float(timeout) <= 0:
-            raise ValueError(f"retries must be >= 0 and timeout > 0, got {retries} and {timeout}")
+        opts = check_options("VLM backend openai", self.OPTION_RULES, {
+            "timeout": timeout, "retries": retries, "backoff": backoff, "max_tokens": max_tokens,
+            "temperature": temperature})
         self.url = base_url.rstrip("/") + "/chat/completions"
         self.model = model
         self.api_key_env = api_key_env
-        self.timeout = float(timeout)
-        self.retries = int(retries)
-        self.backoff = float(backoff)
-        self.max_tokens = int(max_tokens)
-        self.temperature = float(temperature)
+        self.timeout, self.retries, self.backoff = opts["timeout"], opts["retries"], opts["backoff"]
+        self.max_tokens, self.temperature = opts["max_tokens"], opts["temperature"]
         self._warned_no_key = False
 
     def _headers(self) -> dict[str, str]:
@@ -195,6 +197,7 @@ class TransformersVLMBackend:
     """A local transformers image-text-to-text checkpoint (e.g. a LLaVA or Qwen-VL folder)."""
 
     name = "transformers"
+    OPTION_RULES = {"max_new_tokens": whole(1)}
 
     def __init__(self, checkpoint: str | Path, device: str = "cpu", max_new_tokens: int = 128):
         path = Path(checkpoint).expanduser() if checkpoint else None
@@ -214,7 +217,8 @@ class TransformersVLMBackend:
         self.model = AutoModelForImageTextToText.from_pretrained(str(path), local_files_only=True)
         self.model.to(device).eval()
         self.device = device
-        self.max_new_tokens = int(max_new_tokens)
+        self.max_new_tokens = check_options("VLM backend transformers", self.OPTION_RULES,
+                                            {"max_new_tokens": max_new_tokens})["max_new_tokens"]
 
     def ask(self, prompt: str, images: Sequence[np.ndarray], labels: Sequence[str]) -> str:
         """Greedy generation from the chat-templated prompt with the images interleaved."""
@@ -234,25 +238,51 @@ class TransformersVLMBackend:
         return self.processor.decode(new_tokens, skip_special_tokens=True)
 
 
-def make_backend(backend: str, **options: Any) -> VLMBackend:
-    """Build a backend by name: ``openai`` or ``transformers``; an option it does not take is an error."""
+BACKENDS = {"openai": OpenAIChatBackend, "transformers": TransformersVLMBackend}
+
+
+def check_backend_options(backend: str, **options: Any) -> type:
+    """The backend class named ``backend``, after checking that it takes ``options`` and their ranges."""
     import inspect
 
-    classes = {"openai": OpenAIChatBackend, "transformers": TransformersVLMBackend}
-    if backend not in classes:
-        raise ValueError(f"unknown VLM backend {backend!r}; choose 'openai' or 'transformers'")
-    accepted = [n for n in inspect.signature(classes[backend]).parameters if n != "self"]
+    if backend not in BACKENDS:
+        raise InputError(f"unknown VLM backend {backend!r}; choose 'openai' or 'transformers'", option="backend")
+    cls = BACKENDS[backend]
+    accepted = [n for n in inspect.signature(cls).parameters if n != "self"]
     unknown = sorted(set(options) - set(accepted))
     if unknown:
-        raise ValueError(f"VLM backend {backend!r}: unknown option(s) {unknown}; accepted: "
-                         f"backend, view, max_frames, max_side, prompt, {', '.join(accepted)}")
-    return classes[backend](**options)
+        raise InputError(f"VLM backend {backend!r}: unknown option(s) {unknown}; accepted: "
+                         f"backend, view, max_frames, max_side, prompt, {', '.join(accepted)}", option=unknown[0])
+    check_options(f"VLM backend {backend}", cls.OPTION_RULES, options)
+    return cls
+
+
+def make_backend(backend: str, **options: Any) -> VLMBackend:
+    """Build a backend by name: ``openai`` or ``transformers``; an option it does not take is an error."""
+    return check_backend_options(backend, **options)(**options)
 
 
 class VLMDecomposer(Decomposer):
     """Asks a VLM for keyframes among up to ``max_frames`` evenly subsampled frames of one view."""
 
     name = "vlm"
+    OPTION_RULES = {"max_frames": whole(2), "max_side": whole(1, allow_none=True)}
+
+    @classmethod
+    def check_options(cls, **options: Any) -> dict[str, Any]:
+        """Its own options' ranges and, for a backend given by name, the backend's options."""
+        own = {"backend", "view", "views", "max_frames", "max_side", "prompt"}
+        opts = super().check_options(**{k: v for k, v in options.items() if k in own})
+        prompt = opts.get("prompt", PROMPT)
+        if not isinstance(prompt, str) or "{num_frames}" not in prompt:
+            raise InputError(f"{cls.option_owner()}: option prompt must contain {{num_frames}}", option="prompt")
+        backend_options = {k: v for k, v in options.items() if k not in own}
+        backend = opts.get("backend", "openai")
+        if isinstance(backend, str):
+            check_backend_options(backend, **backend_options)
+        elif backend_options:
+            raise InputError("backend options apply only when backend is given by name", option="backend")
+        return {**opts, **backend_options}
 
     def __init__(
         self,
@@ -264,16 +294,11 @@ class VLMDecomposer(Decomposer):
         prompt: str = PROMPT,
         **backend_options: Any,
     ):
-        if max_frames < 2:
-            raise ValueError(f"max_frames must be at least 2, got {max_frames}")
-        if "{num_frames}" not in prompt:
-            raise ValueError("prompt must contain {num_frames}")
+        opts = self.check_options(backend=backend, max_frames=max_frames, max_side=max_side, prompt=prompt,
+                                  **backend_options)
         self.backend = make_backend(backend, **backend_options) if isinstance(backend, str) else backend
-        if not isinstance(backend, str) and backend_options:
-            raise ValueError("backend options apply only when backend is given by name")
         self.view = view or (views[0] if views else None)
-        self.max_frames = int(max_frames)
-        self.max_side = None if max_side is None else int(max_side)
+        self.max_frames, self.max_side = opts["max_frames"], opts["max_side"]
         self.prompt = prompt
 
     def decompose(self, episode: Episode) -> Decomposition:

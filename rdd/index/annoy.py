@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from rdd.atomic import atomic_path
+from rdd.checks import whole
+from rdd.errors import InputError
 from rdd.index.base import NearestIndex, interval_matrix
 
 
@@ -29,16 +31,21 @@ class AnnoyIndex(NearestIndex):
     """Approximate nearest neighbours with Annoy; the built forest is saved beside the database."""
 
     name = "annoy"
+    OPTION_RULES = {"n_trees": whole(1), "search_k": whole(-1), "seed": whole(0)}
+
+    @classmethod
+    def check_options(cls, **options):
+        """The rules' ranges, and ``search_k`` -1 (every tree) or >= 1."""
+        opts = super().check_options(**options)
+        if opts.get("search_k") == 0:
+            raise InputError(f"{cls.option_owner()}: option search_k must be -1 (all trees) or >= 1, got 0",
+                             option="search_k")
+        return opts
 
     def __init__(self, n_trees: int = 10, search_k: int = -1, seed: int = 0) -> None:
         super().__init__()
-        if n_trees < 1:
-            raise ValueError(f"annoy index: n_trees must be >= 1, got {n_trees}")
-        if search_k != -1 and search_k < 1:
-            raise ValueError(f"annoy index: search_k must be -1 (all trees) or >= 1, got {search_k}")
-        self.n_trees = int(n_trees)
-        self.search_k = int(search_k)
-        self.seed = int(seed)
+        opts = self.check_options(n_trees=n_trees, search_k=search_k, seed=seed)
+        self.n_trees, self.search_k, self.seed = opts["n_trees"], opts["search_k"], opts["seed"]
         self._index = None
         self.path: Path | None = None
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rdd.checks import CheckedOptions
 from rdd.scoring import check_intervals, cosine_to_angular
 
 
@@ -20,10 +21,14 @@ def _as_pair(begin: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return b, e
 
 
-class NearestIndex(ABC):
-    """Nearest database entry under angular distance on interval vectors ``concat(begin, end)``."""
+class NearestIndex(CheckedOptions, ABC):
+    """Nearest database entry under angular distance on interval vectors ``concat(begin, end)``.
+
+    Its options' ranges are its ``OPTION_RULES`` (checked by the constructor and ``check_options``).
+    """
 
     name: str = "index"
+    OPTION_KIND = "index"
 
     def __init__(self) -> None:
         self.num_entries = 0

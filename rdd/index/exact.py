@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rdd.checks import FLAG, whole
 from rdd.index._cap_bounds import CELLS_FORMAT, Cells, fit_cells, load_cells, ranges, save_cells
 from rdd.index.base import NearestIndex
 from rdd.scoring import check_intervals, cosine_to_angular
@@ -35,20 +36,18 @@ class ExactIndex(NearestIndex):
     """Exact nearest-neighbour search (no approximation), vectorised over candidate intervals."""
 
     name = "exact"
+    OPTION_RULES = {"memory_mb": whole(1), "threads": whole(1, allow_none=True), "prune": FLAG,
+                    "cluster_size": whole(1), "seed": whole(0)}
 
     def __init__(self, memory_mb: int = 256, threads: int | None = None, prune: bool = True,
                  cluster_size: int = 16, seed: int = 0) -> None:
         super().__init__()
-        if cluster_size < 1:
-            raise ValueError(f"exact index: cluster_size must be >= 1, got {cluster_size}")
-        if memory_mb <= 0:
-            raise ValueError(f"exact index: memory_mb must be positive, got {memory_mb}")
-        if threads is not None and threads < 1:
-            raise ValueError(f"exact index: threads must be None or >= 1, got {threads}")
-        self.prune, self.cluster_size, self.seed = bool(prune), int(cluster_size), int(seed)
-        self.memory_mb = int(memory_mb)
+        opts = self.check_options(memory_mb=memory_mb, threads=threads, prune=prune, cluster_size=cluster_size,
+                                  seed=seed)
+        self.prune, self.cluster_size, self.seed = opts["prune"], opts["cluster_size"], opts["seed"]
+        self.memory_mb = opts["memory_mb"]
         # numpy releases the GIL in add/argmax, so plain threads share the max-over-database work.
-        self.threads = int(threads) if threads is not None else min(2, os.cpu_count() or 1)
+        self.threads = opts["threads"] if threads is not None else min(2, os.cpu_count() or 1)
         self.last_searched_fraction = float("nan")
         self._cells: Cells | None = None
 

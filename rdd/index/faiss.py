@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rdd.checks import one_of, whole
 from rdd.index.base import NearestIndex, interval_matrix
 from rdd.scoring import cosine_to_angular
 
@@ -31,18 +32,16 @@ class FaissIndex(NearestIndex):
     """Nearest neighbours by maximum inner product on normalised vectors (= minimum angle)."""
 
     name = "faiss"
+    OPTION_RULES = {"kind": one_of(*KINDS), "nlist": whole(1, allow_none=True), "nprobe": whole(1),
+                    "hnsw_m": whole(2), "ef_search": whole(1), "use_gpu": one_of(None, True, False)}
 
     def __init__(self, kind: str = "flat", nlist: int | None = None, nprobe: int = 16,
                  hnsw_m: int = 32, ef_search: int = 128, use_gpu: bool | None = None) -> None:
         super().__init__()
-        if kind not in KINDS:
-            raise ValueError(f"faiss index: kind must be one of {KINDS}, got {kind!r}")
-        if nlist is not None and nlist < 1:
-            raise ValueError(f"faiss index: nlist must be None or >= 1, got {nlist}")
-        if nprobe < 1 or hnsw_m < 2 or ef_search < 1:
-            raise ValueError("faiss index: nprobe >= 1, hnsw_m >= 2 and ef_search >= 1 are required")
-        self.kind, self.nlist, self.nprobe = kind, nlist, int(nprobe)
-        self.hnsw_m, self.ef_search = int(hnsw_m), int(ef_search)
+        opts = self.check_options(kind=kind, nlist=nlist, nprobe=nprobe, hnsw_m=hnsw_m, ef_search=ef_search,
+                                  use_gpu=use_gpu)
+        self.kind, self.nlist, self.nprobe = kind, opts["nlist"], opts["nprobe"]
+        self.hnsw_m, self.ef_search = opts["hnsw_m"], opts["ef_search"]
         self.use_gpu = use_gpu
         self._index = None
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
+from omegaconf import DictConfig
 
 import experiments.schemas  # noqa: F401  (registers base_config)
 from experiments.pipeline import run
@@ -36,11 +37,35 @@ def _compose(overrides: list[str]):
     ("seed=10", "seed: expected <= 9 with eval.seed_stride=1000"),
     ("eval.episodes_per_task=2000", "eval.episodes_per_task: expected <= eval.seed_stride=1000"),
     ("planner.pretrain.epochs=0", "planner.pretrain: planner epochs, batch_size and grad_accum must be >= 1"),
-    ("policy.train.kappa_end=-1", "policy.train: policy train.kappa_end must be > 0"),
+    ("policy.train.kappa_end=-1", "policy.train.kappa_end: policy train: option kappa_end must be > 0.0, got -1"),
+    # Components' own options: each range declared once by the component (rdd.checks), checked
+    # before any stage through its check_options or, for a dataclass, by building it.
+    ("decomposer.alpha=nan", "decomposer.alpha: decomposer rdd: option alpha must be a finite number >= 0.0"),
+    ("decomposer.min_len=0", "decomposer.min_len: decomposer rdd: option min_len must be >= 1, got 0"),
+    ("decomposer.max_len=1", "decomposer.max_len: decomposer rdd: option max_len must be null (unbounded) or >= "
+                             "min_len=2, got 1"),
+    ("decomposer=uniform decomposer.n_segments=0", "decomposer.n_segments: decomposer uniform: option n_segments "
+                                                   "must be >= 1, got 0"),
+    ("decomposer=uvd decomposer.gamma=0", "decomposer.gamma: decomposer uvd: option gamma must be > 0.0, got 0"),
+    ("decomposer=rdd_ood decomposer.uvd_options.min_interval=0", "decomposer.uvd_options.min_interval: "),
+    ("decomposer=expert decomposer.stopping_delta=-1", "decomposer.stopping_delta: decomposer expert: option"),
+    ("decomposer=vlm decomposer.retries=-1", "decomposer.retries: VLM backend openai: option retries must be >= 0"),
+    ("env.image_size=0", "env.image_size: env: option image_size must be >= 8 and <= 4096, got 0"),
+    ("env.max_steps=0", "env.max_steps: env: option max_steps must be >= 1, got 0"),
+    ("env.ticks_per_frame=0", "env.ticks_per_frame: env: option ticks_per_frame must be >= 1, got 0"),
+    ("env.motion_timeout=nan", "env.motion_timeout: env: option motion_timeout must be a finite number > 0.0"),
+    ("policy.train.epochs=0", "policy.train.epochs: policy train: option epochs must be >= 1, got 0"),
+    ("policy.train.lr=inf", "policy.train.lr: policy train: option lr must be a finite number > 0.0, got inf"),
+    ("policy.train.anneal_fraction=2", "policy.train.anneal_fraction: policy train: option anneal_fraction must be"),
+    ("policy.net.pos_sigma=0", "policy.net.pos_sigma: policy net: option pos_sigma must be > 0.0, got 0"),
+    ("policy.net.hidden=0", "policy.net.hidden: policy net: option hidden must be >= 1, got 0"),
+    ("policy.data.frames_per_segment=0", "policy.data.frames_per_segment: policy data: option frames_per_segment"),
+    ("index.memory_mb=0", "index.memory_mb: index exact: option memory_mb must be >= 1, got 0"),
+    ("index=annoy index.search_k=0", "index.search_k: index annoy: option search_k must be -1 (all trees) or >= 1"),
 ])
 def test_out_of_range_fails_before_any_stage(tmp_path, override, expect):
     out, cache = tmp_path / "out", tmp_path / "cache"
-    cfg = _compose(["experiment=smoke", f"output_dir={out}", f"paths.cache_dir={cache}", override])
+    cfg = _compose(["experiment=smoke", f"output_dir={out}", f"paths.cache_dir={cache}", *override.split()])
     with pytest.raises(ConfigError) as info:
         run(cfg)
     assert str(info.value).startswith(expect.split(":")[0] + ":") and expect in str(info.value), str(info.value)
@@ -76,3 +101,38 @@ def test_every_numeric_option_declares_a_range():
                 if RANGE not in f.metadata:
                     missing.append(prefix + f.name)
     assert seen >= 15 and not missing, missing
+
+
+def _numbers(node: DictConfig, prefix: str):
+    """(dotted key, value) of each number in a component node, nested option mappings included."""
+    for key in node:
+        if key == "_target_" or node._get_node(key)._is_interpolation():
+            continue  # a nested component (``index: ${index}``) is checked under its own group
+        value = node[key]
+        if isinstance(value, DictConfig):
+            yield from _numbers(value, f"{prefix}.{key}")
+        elif isinstance(value, int | float) and not isinstance(value, bool):
+            yield f"{prefix}.{key}", value
+
+
+# The groups whose options' ranges this project declares (encoders build in preflight, before any
+# stage; the planner's settings are its dataclasses', covered above).
+CHECKED_GROUPS = ("env", "decomposer", "index", "policy")
+
+
+@pytest.mark.parametrize("group", CHECKED_GROUPS)
+def test_every_numeric_component_option_has_a_range(tmp_path, group):
+    """Each number of each option of the group, set far out of range (NaN, or -1e9 for a whole number),
+    fails validation naming its key: every component declares a range for every numeric option."""
+    checked = 0
+    for option in sorted(p.stem for p in (CONF / group).glob("*.yaml")):
+        base = ["experiment=smoke", f"paths.cache_dir={tmp_path}", f"{group}={option}"]
+        node = _compose(base)[group]
+        for key, value in _numbers(node, group):
+            bad = "-1000000000" if isinstance(value, int) else "nan"
+            with pytest.raises(ConfigError) as info:
+                validate_config(_compose([*base, f"{key}={bad}"]))
+            assert str(info.value).startswith(f"{key}: "), (option, key, str(info.value))
+            checked += 1
+        validate_config(_compose(base))  # the shipped values are in range
+    assert checked >= 3
