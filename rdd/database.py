@@ -15,7 +15,7 @@ import numpy as np
 
 from rdd.atomic import atomic_dir
 from rdd.data.episode import Episode
-from rdd.database_build import segment_entries
+from rdd.database_build import Entries, segment_entries
 from rdd.database_store import (
     PER_ENTRY,
     DatabaseError,
@@ -141,8 +141,19 @@ class SubtaskDatabase:
         (e.g. an RLBench variation description or a LeRobot task string) for every segment.
         ``normalize_views=False`` concatenates raw per-view embeddings (the official code's layout).
         """
-        begin, end, durations, labels, meta_lists, frames = segment_entries(
-            episodes, segmentations, encoder, views, cache, instructions, normalize_views, keep_frames)
+        return cls.from_entries(
+            segment_entries(episodes, segmentations, encoder, views, cache, instructions, normalize_views,
+                            keep_frames),
+            encoder, views, normalize_views)
+
+    @classmethod
+    def from_entries(cls, entries: Entries, encoder: Encoder, views: Sequence[str] = DEFAULT_VIEWS,
+                     normalize_views: bool = True) -> SubtaskDatabase:
+        """The database of :func:`rdd.database_build.segment_entries`' result (of :meth:`build`, or
+        of episodes embedded apart and joined by :func:`rdd.database_build.merge_entries`)."""
+        begin, end, durations, labels, meta_lists, frames = entries
+        if not begin:
+            raise ValueError("no segments to build a database from (no episodes given)")
         meta = {
             "encoder": encoder.name,
             "weights_id": encoder.weights_id,

@@ -85,3 +85,23 @@ def segment_entries(
     if not begin:
         raise ValueError("no segments to build a database from (no episodes given)")
     return begin, end, durations, labels, meta_lists, frames
+
+
+def merge_entries(parts: Sequence[Entries]) -> Entries:
+    """The entries of several :func:`segment_entries` results, in order (as one call over all their
+    episodes would give)."""
+    begin, end, durations, labels = [], [], [], []
+    meta_lists: dict[str, list] = {k: [] for k in PER_ENTRY}
+    frames: dict[str, np.ndarray] = {}
+    for b, e, d, lab, meta, fr in parts:
+        begin += b
+        end += e
+        durations += d
+        labels += lab
+        for k in PER_ENTRY:
+            meta_lists[k] += meta[k]
+        clash = sorted(set(frames) & set(fr))
+        if clash:
+            raise ValueError(f"episode names must be unique to keep frames for calibration: {clash}")
+        frames.update(fr)
+    return begin, end, durations, labels, meta_lists, frames

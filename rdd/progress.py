@@ -40,23 +40,43 @@ def progress(items: Iterable[T], desc: str, total: int | None = None, unit: str 
     yield from _bar(iterable=items, desc=desc, total=total, unit=unit, leave=leave)
 
 
+class EpisodeBar:
+    """One bar over a job's episodes, counting their frames (with ETA); each finished episode is
+    logged (INFO, shown with ``-v``). Episodes done before (a resumed run's) start the bar at ``done``."""
+
+    def __init__(self, desc: str, count: int, total_frames: int, done: int = 0, done_frames: int = 0):
+        self.desc, self.count, self.total = desc, int(count), int(total_frames)
+        self.done, self.frames = int(done), int(done_frames)
+        self._start_frames, self._t0 = self.frames, time.monotonic()
+        self._bar = _bar(total=self.total, initial=self.frames, desc=desc, unit="frame")
+        self._bar.set_postfix_str(f"episode {self.done}/{self.count}")
+
+    def advance(self, name: str, frames: int, seconds: float) -> None:
+        """Count one finished episode of ``frames`` frames that took ``seconds``."""
+        self.done += 1
+        self.frames += int(frames)
+        self._bar.update(int(frames))
+        self._bar.set_postfix_str(f"episode {self.done}/{self.count}")
+        run = self.frames - self._start_frames
+        eta = (time.monotonic() - self._t0) / run * (self.total - self.frames) if run else 0.0
+        log.info("%s: episode %d/%d %s (%d frames) in %.1fs; %d/%d frames, ETA %.0fs",
+                 self.desc, self.done, self.count, name, frames, seconds, self.frames, self.total, eta)
+
+    def close(self) -> None:
+        """Remove the bar."""
+        self._bar.close()
+
+    def __enter__(self) -> EpisodeBar:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def track_episodes(episodes: Sequence[Any], desc: str) -> Iterator[Any]:
     """Yield ``episodes``; a bar counts their frames (with ETA), and each finished one is logged (INFO)."""
-    total = sum(int(e.num_frames) for e in episodes)
-    bar = _bar(total=total, desc=desc, unit="frame")
-    done = 0
-    t0 = time.monotonic()
-    try:
-        for i, ep in enumerate(episodes, 1):
-            bar.set_postfix_str(f"episode {i}/{len(episodes)}")
+    with EpisodeBar(desc, len(episodes), sum(int(e.num_frames) for e in episodes)) as bar:
+        for ep in episodes:
             start = time.monotonic()
             yield ep
-            done += int(ep.num_frames)
-            bar.update(int(ep.num_frames))
-            elapsed = time.monotonic() - t0
-            eta = elapsed / done * (total - done) if done else 0.0
-            log.info("%s: episode %d/%d %s (%d frames) in %.1fs; %d/%d frames, ETA %.0fs",
-                     desc, i, len(episodes), ep.name, ep.num_frames, time.monotonic() - start,
-                     done, total, eta)
-    finally:
-        bar.close()
+            bar.advance(ep.name, int(ep.num_frames), time.monotonic() - start)

@@ -2,9 +2,10 @@
 
 Subcommands: ``build-db``, ``calibrate``, ``decompose``, ``evaluate``, ``plot``, ``demo``. Every expected failure
 is reported as one line naming the file or option at fault, with exit status 2 (``-v`` also prints
-the traceback); Ctrl-C stops with status 130 and leaves no partial output. Outputs are written
-atomically, never replace an existing file or folder without ``--force``, and never replace or go
-inside an input of the same command, ``--force`` or not.
+the traceback); Ctrl-C stops with status 130 and leaves no partial output (``decompose`` and
+``build-db`` keep the episodes they finished beside it, so the same command resumes: ``rdd.cli.staging``).
+Outputs are written atomically, never replace an existing file or folder without ``--force``, and never
+replace or go inside an input of the same command, ``--force`` or not.
 """
 
 from __future__ import annotations
@@ -42,7 +43,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"\ninterrupted ({args.command}): stopped; no partial output was written", file=sys.stderr)
+        resumes = " (the episodes it finished are kept: the same command resumes)" \
+            if args.command in ("decompose", "build-db") else ""
+        print(f"\ninterrupted ({args.command}): stopped; no partial output was written{resumes}", file=sys.stderr)
         return 130
     except CLIError as exc:
         return _report(args, str(exc), "error")

@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+from pathlib import Path
+from typing import Any
 
+import numpy as np
+
+from rdd.atomic import atomic_file
 from rdd.cli.common import (
     CLIError,
     cache_input,
     check_output,
-    embed_all,
     load_data,
     log,
     make_cache,
@@ -19,14 +24,56 @@ from rdd.cli.common import (
 )
 from rdd.cli.components import expert_decomposer
 from rdd.cli.options import data_args, embed_args, expert_args, force_arg, with_reader_help
+from rdd.cli.staging import (
+    Staging,
+    add_workers_arg,
+    check_workers,
+    parts_folder,
+    run_staged,
+    settings_hash,
+)
+from rdd.data.episode import Episode
+from rdd.database_build import Entries, segment_entries
 from rdd.progress import progress
+
+
+def _embedder(args: argparse.Namespace, views: tuple[str, ...]):
+    """A worker's encoder, views, cache and view normalisation, built from the command's arguments."""
+    return (make_encoder(args.encoder, parse_options(args.encoder_option, "--encoder-option")), views,
+            make_cache(args), not args.raw_views)
+
+
+def _embed_one(state, path: Path, episode: Episode, payload: Any) -> None:
+    """One episode's database entries (its segments' boundary frame vectors; every frame's when
+    calibration keeps it), staged at ``path``."""
+    encoder, views, cache, normalize = state
+    segments, instructions, kept = payload
+    begin, end, durations, labels, meta, frames = segment_entries(
+        [episode], [segments], encoder, views, cache, None if instructions is None else [instructions],
+        normalize, [episode.name] if kept else [])
+    info = {"episode": episode.name, "durations": durations, "labels": labels, "meta": meta}
+    with atomic_file(path) as fh:
+        np.savez(fh, begin=np.stack(begin), end=np.stack(end), info=np.array(json.dumps(info)),
+                 **({"frames": frames[episode.name]} if kept else {}))
+
+
+def _staged_entries(path: Path, episode: Episode) -> Entries:
+    with np.load(path, allow_pickle=False) as part:
+        info = json.loads(str(part["info"]))
+        if info["episode"] != episode.name:
+            raise CLIError(f"{path}: a staged part of another episode ({info['episode']!r}, not "
+                           f"{episode.name!r}); delete {path.parent} and run again")
+        frames = {episode.name: part["frames"]} if "frames" in part.files else {}
+        return list(part["begin"]), list(part["end"]), info["durations"], info["labels"], info["meta"], frames
 
 
 def cmd_build_db(args: argparse.Namespace) -> int:
     """Segment episodes (their sub-task annotations or the expert rule), build and calibrate the database."""
     from rdd.calibrate import CalibrationError, calibrate, sample_episodes, summary
     from rdd.database import SubtaskDatabase
+    from rdd.database_build import merge_entries
 
+    workers = check_workers(args.workers)
     out = check_output(args.out, "--out", args.force, kind="dir", inputs=[("--data", args.data), cache_input(args)])
     episodes = load_data(args)
     views = resolve_views(args.views, episodes[0])
@@ -68,12 +115,21 @@ def cmd_build_db(args: argparse.Namespace) -> int:
             keep = sample_episodes(names, args.calibration_sample, args.calibration_seed)
         except CalibrationError as exc:
             raise CLIError(f"--calibration-sample: {exc}") from exc
-    cache = make_cache(args)
-    # Only each segment's first and last frame are encoded, except for the calibration sample.
-    embed_all([e for e in episodes if e.name in keep], encoder, views, cache)
-    db = SubtaskDatabase.build(episodes, segmentations, encoder, views=views, cache=cache,
-                               instructions=instructions, normalize_views=not args.raw_views,
-                               keep_frames=keep)
+    # Each episode's entries are staged beside --out as they are embedded (rdd.cli.staging): a run
+    # that stops resumes there. Only each segment's first and last frame are encoded, except for
+    # the calibration sample.
+    staging = Staging(parts_folder(out), settings_hash(args, encoder=[encoder.name, encoder.weights_id],
+                                                       views=views, segments=source), suffix=".npz")
+    items = []
+    for i, ep in enumerate(episodes):
+        payload = ([tuple(int(v) for v in seg) for seg in segmentations[i]],
+                   None if instructions is None else list(instructions[i]), ep.name in keep)
+        items.append((staging.path(i, ep, payload), ep, payload))
+    run_staged(items, _embed_one, f"embedding ({encoder.name})", workers=workers,
+               state=(encoder, views, make_cache(args), not args.raw_views),
+               factory=_embedder, factory_args=(args, views))
+    db = SubtaskDatabase.from_entries(merge_entries([_staged_entries(p, ep) for p, ep, _ in items]),
+                                      encoder, views, normalize_views=not args.raw_views)
     db.meta["source"] = {"format": args.format, "data": str(args.data),
                          "episodes": names, "segmenter": source}
     if keep:
@@ -86,6 +142,7 @@ def cmd_build_db(args: argparse.Namespace) -> int:
     out = db.save(out, overwrite=args.force)
     print(f"built database {out}: {len(db)} sub-tasks from {len(episodes)} episodes "
           f"(encoder {encoder.name}, views {list(views)}, segments {source})")
+    staging.remove()
     if db.meta.get("calibration"):
         print(summary(db.meta["calibration"]))
     return 0
@@ -103,6 +160,7 @@ def add_parser(sub) -> None:
                         "or the expert rule; auto: annotations when every episode has them")
     p.add_argument("--out", required=True, help="database directory")
     force_arg(p)
+    add_workers_arg(p)
     p.add_argument("--no-calibrate", action="store_true",
                    help="skip leave-one-episode-out calibration (embeds only segment boundary frames)")
     p.add_argument("--calibration-sample", type=int, default=10, metavar="N",

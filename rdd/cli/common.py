@@ -14,7 +14,6 @@ from rdd.atomic import check_writable
 from rdd.atomic import write_json_atomic as _write_json
 from rdd.data.episode import Episode
 from rdd.encoders.embed import DEFAULT_VIEWS
-from rdd.progress import track_episodes
 
 log = logging.getLogger("rdd")
 
@@ -195,13 +194,3 @@ def make_cache(args: argparse.Namespace):
     from rdd.encoders.cache import EmbeddingCache
 
     return EmbeddingCache(args.cache_dir)
-
-
-def embed_all(episodes: Sequence[Episode], encoder, views: Sequence[str], cache) -> None:
-    """Fill the embedding cache episode by episode so the progress bar shows the slow part."""
-    if cache is None:
-        return
-    from rdd.encoders.embed import episode_frame_vectors
-
-    for ep in track_episodes(episodes, f"embedding ({encoder.name})"):
-        episode_frame_vectors(ep, encoder, views=views, cache=cache)

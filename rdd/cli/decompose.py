@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import json
 import string
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
+from rdd.atomic import write_text_atomic
 from rdd.cli.common import (
     CLIError,
     cache_input,
     check_output,
-    embed_all,
     load_data,
     make_cache,
     make_encoder,
@@ -20,8 +22,16 @@ from rdd.cli.common import (
 )
 from rdd.cli.components import DECOMPOSERS, decomposer_help, make_decomposer
 from rdd.cli.options import data_args, embed_args, expert_args, force_arg, reader_help
+from rdd.cli.staging import (
+    Staging,
+    add_workers_arg,
+    check_workers,
+    digest,
+    parts_folder,
+    run_staged,
+    settings_hash,
+)
 from rdd.data.episode import Episode
-from rdd.progress import track_episodes
 
 OUTPUT_VERSION = 1
 FALLBACK_FIELDS = ("task", "episode", "index", "count", "start", "end")
@@ -136,12 +146,41 @@ def lerobot_subtasks(episodes: Sequence[Episode], records: Sequence[dict[str, An
     return out
 
 
+def _components(args: argparse.Namespace, first: Episode):
+    """A worker's decomposer and labeler, built from the command's arguments as the parent's were."""
+    return make_decomposer(args, first)[0], make_labeler(args), args
+
+
+def _decompose_one(state, path: Path, episode: Episode, _payload: Any) -> None:
+    """Decompose and label one episode; stage its record at ``path``."""
+    decomposer, labeler, args = state
+    try:
+        record = episode_record(episode, decomposer.decompose(episode))
+        fill_instructions(record, episode, labeler, args.fallback_instruction)
+    except ValueError as exc:
+        raise CLIError(f"episode {episode.name!r} ({args.data}): {exc}") from exc
+    write_text_atomic(path, json.dumps({"episode": episode.name, "record": record}))
+
+
+def _staged_record(path: Path, episode: Episode) -> dict[str, Any]:
+    part = json.loads(path.read_text())
+    if part.get("episode") != episode.name:
+        raise CLIError(f"{path}: a staged part of another episode ({part.get('episode')!r}, not "
+                       f"{episode.name!r}); delete {path.parent} and run again")
+    return part["record"]
+
+
 def cmd_decompose(args: argparse.Namespace) -> int:
-    """Decompose every episode at ``--data``; write the segments as JSON and/or into a LeRobot copy."""
+    """Decompose every episode at ``--data``; write the segments as JSON and/or into a LeRobot copy.
+
+    Each episode's record is staged beside the output as it is done (``rdd.cli.staging``), so a run
+    that stops resumes where it stopped; ``--workers N`` decomposes N episodes at once.
+    """
     if args.out is None and args.write_lerobot is None:
         raise CLIError("decompose needs --out FILE.json, --write-lerobot DIR, or both")
     if args.write_lerobot is not None and args.format != "lerobot":
         raise CLIError(f"--write-lerobot needs --format lerobot, not {args.format}")
+    workers = check_workers(args.workers)
     inputs = [("--data", args.data), ("--db", args.db), ("--label-db", args.label_db), cache_input(args)]
     out = check_output(args.out, "--out", args.force, inputs=inputs)
     lerobot_out = check_output(args.write_lerobot, "--write-lerobot", False, kind="dir",
@@ -154,26 +193,27 @@ def cmd_decompose(args: argparse.Namespace) -> int:
     config.update(format=args.format, data=str(args.data), version=OUTPUT_VERSION,
                   fallback_instruction=args.fallback_instruction, labeler=args.labeler,
                   label_db=None if labeler is None else str(args.label_db or args.db))
-    if args.decomposer in ("rdd", "uvd"):
-        embed_all(episodes, decomposer.encoder, decomposer.views, getattr(decomposer, "cache", None))
-    records = []
-    for ep in track_episodes(episodes, f"decompose ({args.decomposer})"):
-        try:
-            record = episode_record(ep, decomposer.decompose(ep))
-            fill_instructions(record, ep, labeler, args.fallback_instruction)
-            records.append(record)
-        except ValueError as exc:
-            raise CLIError(f"episode {ep.name!r} ({args.data}): {exc}") from exc
-    subtasks = lerobot_subtasks(episodes, records, args.decomposer) if lerobot_out is not None else None
+    label_db = getattr(labeler, "database", None)
+    staging = Staging(parts_folder(out if out is not None else lerobot_out),
+                      settings_hash(args, config=config, label_db=label_db and label_db.fingerprint()))
+    items = [(staging.path(i, ep), ep, None) for i, ep in enumerate(episodes)]
+    run_staged(items, _decompose_one, f"decompose ({args.decomposer})", workers=workers,
+               state=(decomposer, labeler, args), factory=_components, factory_args=(args, episodes[0]))
+    records = [_staged_record(path, ep) for path, ep, _ in items]
+    if lerobot_out is not None:
+        from rdd.data.lerobot_write import write_subtasks
+
+        subtasks = lerobot_subtasks(episodes, records, args.decomposer)
+        copy_parts = parts_folder(lerobot_out) / f"copy-{digest([str(args.data), sorted(subtasks.items())])[:24]}"
+        write_subtasks(args.data, lerobot_out, subtasks, staging=copy_parts)
+        print(f"wrote {lerobot_out}: LeRobot dataset with sub-tasks of {len(subtasks)} episodes "
+              "(language_persistent)")
     if out is not None:
         write_json_atomic(out, {"config": config, "episodes": records}, overwrite=args.force)
         print(f"wrote {out}: {len(records)} episodes decomposed with {args.decomposer}")
-    if subtasks is not None:
-        from rdd.data.lerobot_write import write_subtasks
-
-        write_subtasks(args.data, lerobot_out, subtasks)
-        print(f"wrote {lerobot_out}: LeRobot dataset with sub-tasks of {len(subtasks)} episodes "
-              "(language_persistent)")
+    staging.remove()
+    if lerobot_out is not None:
+        Staging(parts_folder(lerobot_out), "").remove()
     return 0
 
 
@@ -208,4 +248,5 @@ def add_parser(sub) -> None:
                    help="instruction for segments the decomposer gives none, with fields "
                         + ", ".join("{" + f + "}" for f in FALLBACK_FIELDS))
     force_arg(p)
+    add_workers_arg(p)
     p.set_defaults(func=cmd_decompose)

@@ -71,6 +71,14 @@ class Episode:
             )
         return self.views[view].load(indices)
 
+    def release(self) -> None:
+        """Drop the frames (and lazily read arrays) loaded so far; they are read again if asked for.
+        A job over many episodes calls this when it is done with one, so memory stays that of one."""
+        for source in [*self.views.values(), *self.meta.values()]:
+            release = getattr(source, "release", None)
+            if callable(release):
+                release()
+
     def fingerprint(self, views: Sequence[str] | None = None) -> str:
         """Content hash of the chosen views' frames (all views when None)."""
         h = hashlib.sha256()

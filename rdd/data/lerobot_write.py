@@ -23,17 +23,18 @@ image frames), are hard-linked when ``link`` is true and the filesystem allows i
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
 import shutil
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rdd.atomic import atomic_dir
+from rdd.atomic import TargetExistsError, atomic_dir, atomic_path, write_text_atomic
 from rdd.data.lerobot_dataset import LeRobotDataset, _column, _need
 from rdd.data.lerobot_language import LANGUAGE_EVENTS, LANGUAGE_PERSISTENT
 from rdd.segments import Segment, validate_segments
@@ -153,24 +154,47 @@ def _rewrite_data_file(src: Path, dst: Path, new_rows: Mapping[int, list[dict[st
                                pa.array(persistent, type=persistent_type()))
     table = table.append_column(pa.field(LANGUAGE_EVENTS, events_type()), pa.array(events, type=events_type()))
     table = table.replace_schema_metadata(_hf_metadata(base.schema.metadata))
-    with pq.ParquetWriter(dst, table.schema) as writer:
+    with atomic_path(dst) as tmp, pq.ParquetWriter(tmp, table.schema) as writer:
         for a, b in zip(bounds[:-1], bounds[1:], strict=True):
             writer.write_table(table.slice(a, b - a), row_group_size=max(1, b - a))
     return order
 
 
+def _episodes_in(path: Path, file_episode: int | None) -> list[int]:
+    """The episodes a data parquet file holds (its ``episode_index`` column, else ``file_episode``)."""
+    import pyarrow.parquet as pq
+
+    if "episode_index" not in pq.read_schema(path).names:
+        return [] if file_episode is None else [file_episode]
+    table = pq.read_table(path, columns=["episode_index"])
+    return sorted(set(_column(table, "episode_index", path).astype(np.int64).tolist()))
+
+
 def _link_or_copy(src: Path, dst: Path, link: bool) -> None:
     """Hard-link ``src`` to ``dst`` when ``link`` and it is immutable media (else, or failing, copy)."""
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    if link and src.suffix.lower() in IMMUTABLE_SUFFIXES:
-        try:
-            os.link(src, dst)
-            return
-        except OSError as exc:
-            if exc.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK, errno.ENOTSUP, errno.EACCES):
-                raise
-    shutil.copyfile(src, dst)
-    shutil.copymode(src, dst)
+    with atomic_path(dst) as tmp:  # a file of the copy is there whole or not at all (resuming trusts it)
+        if link and src.suffix.lower() in IMMUTABLE_SUFFIXES:
+            tmp.unlink()
+            try:
+                os.link(src, tmp)
+                return
+            except OSError as exc:
+                if exc.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK, errno.ENOTSUP, errno.EACCES):
+                    raise
+        shutil.copyfile(src, tmp)
+        shutil.copymode(src, tmp)
+
+
+@contextlib.contextmanager
+def _resumable_dir(staging: Path, out: Path) -> Iterator[Path]:
+    """Yield ``staging`` (kept across runs, its files each written whole); on success rename it to ``out``."""
+    if out.exists():
+        raise TargetExistsError(f"{out} already exists (refusing to replace it)")
+    staging.mkdir(parents=True, exist_ok=True)
+    yield staging
+    if out.exists():
+        raise TargetExistsError(f"{out} already exists (refusing to replace it)")
+    os.rename(staging, out)
 
 
 def _inside(path: Path, folder: Path) -> bool:
@@ -186,10 +210,16 @@ def write_subtasks(
     out: str | Path,
     subtasks: Mapping[int, tuple[Sequence[Segment], Sequence[str]]],
     link: bool = True,
+    staging: str | Path | None = None,
 ) -> Path:
     """Write OUT, a copy of the dataset at ``source`` whose ``language_persistent`` column carries
     ``subtasks`` (episode index -> (segments, instructions)); returns OUT. ``link``: hard-link the
-    videos and image frames instead of copying them (every other file is always copied)."""
+    videos and image frames instead of copying them (every other file is always copied).
+
+    ``staging``: a folder to build the copy in, kept when the writing stops, so that a rerun with the
+    same source and sub-tasks (the caller keys the folder by them) writes only the files still missing
+    (each data parquet file is rewritten once); renamed to OUT when complete. Without it the copy is
+    built in a temporary folder and a stopped run leaves nothing."""
     _need("pyarrow")
     ds = LeRobotDataset(source)
     src_root, out = ds.root.resolve(), Path(out)
@@ -224,21 +254,25 @@ def write_subtasks(
         ts = _column(table, "timestamp", path).astype(np.float32)
         rows[int(ep)] = subtask_rows(segments, instructions, ts, f"{path} (episode {ep})")
     written: set[int] = set()
-    with atomic_dir(out) as tmp:
+    building = atomic_dir(out) if staging is None else _resumable_dir(Path(staging), out)
+    with building as tmp:
         for dirpath, _dirs, files in os.walk(src_root):
             for name in files:
                 src = Path(dirpath) / name
                 rel = src.relative_to(src_root)
                 dst = tmp / rel
                 if src.resolve() in data_files:
-                    dst.parent.mkdir(parents=True, exist_ok=True)
-                    written.update(_rewrite_data_file(src, dst, rows, data_files[src.resolve()]))
+                    if dst.is_file():  # written by an earlier run into the same staging folder
+                        written.update(_episodes_in(dst, data_files[src.resolve()]))
+                    else:
+                        written.update(_rewrite_data_file(src, dst, rows, data_files[src.resolve()]))
+                elif dst.is_file():
+                    continue
                 elif rel == Path("meta/info.json"):
                     info = dict(ds.info)
                     info["features"] = {**ds.info["features"], LANGUAGE_PERSISTENT: dict(LANGUAGE_FEATURE),
                                         LANGUAGE_EVENTS: dict(LANGUAGE_FEATURE)}
-                    dst.parent.mkdir(parents=True, exist_ok=True)
-                    dst.write_text(json.dumps(info, indent=4, ensure_ascii=False) + "\n")
+                    write_text_atomic(dst, json.dumps(info, indent=4, ensure_ascii=False) + "\n")
                 else:
                     _link_or_copy(src, dst, link)
         lost = sorted(set(rows) - written)

@@ -72,6 +72,10 @@ class NpzFrames:
             self._array = arr
         return self._array
 
+    def release(self) -> None:
+        """Forget the decoded frames (read again on the next load)."""
+        self._array = None
+
     def load(self, indices: Sequence[int] | None = None) -> np.ndarray:
         """Frames at ``indices`` (all when None)."""
         arr = self._load_all()
@@ -101,6 +105,10 @@ class LazyNpz(Mapping):
             except (OSError, ValueError, zipfile.BadZipFile) as exc:
                 raise InputError(f"cannot read {self.path}: {exc}") from exc
         return self._data
+
+    def release(self) -> None:
+        """Forget the arrays read (read again when next accessed)."""
+        self._data = None
 
     def __getitem__(self, key: str) -> np.ndarray:
         data = self._load()
