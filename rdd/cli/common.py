@@ -117,16 +117,27 @@ def write_json_atomic(path: str | Path, data: Any, overwrite: bool = True) -> Pa
 
 
 def load_data(args: argparse.Namespace) -> list[Episode]:
-    """Episodes at ``--data`` in ``--format``, filtered by ``--include`` / ``--exclude``."""
-    from rdd.data.load import load_episodes
+    """Episodes at ``--data`` in ``--format``, filtered by ``--include`` / ``--exclude`` before any
+    episode is read, so an excluded episode's files are never opened."""
+    from rdd.data.load import episode_names, load_episodes
 
     if not Path(args.data).exists():
         raise CLIError(f"--data {args.data}: no such file or folder")
     options = parse_options(args.reader_option, "--reader-option")
     try:
-        episodes = load_episodes(args.format, args.data, **options)
+        names = episode_names(args.format, args.data, **options)
+        for flag, wanted in (("--include", args.include), ("--exclude", args.exclude)):
+            unknown = sorted(set(wanted or ()) - set(names))
+            if unknown:
+                raise CLIError(f"{flag}: no episode named {unknown} in {args.data}; have {names}")
+        chosen = [n for n in names if (not args.include or n in set(args.include))
+                  and n not in set(args.exclude or ())]
+        if not chosen:
+            raise CLIError(f"--data {args.data}: no episodes left after --include/--exclude")
+        episodes = load_episodes(args.format, args.data, names=set(chosen), **options)
     except TypeError as exc:
-        raise CLIError(f"--reader-option for --format {args.format}: {exc}".replace("load_episodes() ", "")) from exc
+        raise CLIError(f"--reader-option for --format {args.format}: {exc}".replace("load_episodes() ", "")
+                       .replace("episode_names() ", "")) from exc
     except ValueError as exc:
         if "reader option" in str(exc):
             raise CLIError(f"--reader-option: {exc}") from exc
@@ -135,17 +146,6 @@ def load_data(args: argparse.Namespace) -> list[Episode]:
         from rdd.data.lerobot import describe_layout
 
         print(f"lerobot: {describe_layout(episodes[0])}", file=sys.stderr)
-    names = [e.name for e in episodes]
-    for flag, wanted in (("--include", args.include), ("--exclude", args.exclude)):
-        unknown = sorted(set(wanted or ()) - set(names))
-        if unknown:
-            raise CLIError(f"{flag}: no episode named {unknown} in {args.data}; have {names}")
-    if args.include:
-        episodes = [e for e in episodes if e.name in set(args.include)]
-    if args.exclude:
-        episodes = [e for e in episodes if e.name not in set(args.exclude)]
-    if not episodes:
-        raise CLIError(f"--data {args.data}: no episodes left after --include/--exclude")
     return episodes
 
 

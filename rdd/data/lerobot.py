@@ -13,7 +13,7 @@ annotation tools (or ``rdd.data.lerobot_write``) are read from the ``language_pe
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -222,7 +222,7 @@ def load_episode(
         tasks = [ds.tasks.get(int(_column(table, "task_index", data_path)[0]), "")]
     goal = str(tasks[0]) if tasks else ""
     return Episode(
-        name=f"episode_{ep:06d}",
+        name=episode_name(ep),
         views=views,
         gripper_open=gripper,
         joint_positions=joint_positions,
@@ -263,23 +263,16 @@ def describe_layout(episode: Episode) -> str:
             "override with --reader-option joint_indices=[...] gripper_indices=[[...],[...]]")
 
 
-def load_episodes(
-    root: str | Path,
-    episodes: Sequence[int] | None = None,
-    skip_missing: bool = False,
-    **options: Any,
-) -> list[Episode]:
-    """Episodes of the dataset at ``root`` (all listed ones when ``episodes`` is None).
-
-    A listed episode whose files are missing is an error unless ``skip_missing`` (then it is
-    skipped with a warning). ``options`` go to :func:`load_episode` (see :data:`READER_OPTIONS`).
-    """
-    check_reader_options({"episodes": episodes, "skip_missing": skip_missing, **options})
-    ds = LeRobotDataset(root)
+def _wanted(ds: LeRobotDataset, episodes: Sequence[int] | None, skip_missing: bool,
+            names: Collection[str] | None = None) -> list[int]:
+    """The episode indices to read: ``episodes`` (default: every listed one), those named in ``names``
+    only, and with ``skip_missing`` only those whose data file exists (files are only checked, not opened)."""
     wanted = sorted(ds.episodes) if episodes is None else [int(e) for e in episodes]
     unknown = [e for e in wanted if e not in ds.episodes]
     if unknown:
         raise ValueError(f"reader option episodes: {unknown} are not listed in {ds.root}/meta")
+    if names is not None:
+        wanted = [e for e in wanted if episode_name(e) in names]
     if skip_missing:
         present = set(ds.present_episodes())
         missing = [e for e in wanted if e not in present]
@@ -288,4 +281,34 @@ def load_episodes(
         wanted = [e for e in wanted if e in present]
         if not wanted:
             raise FileNotFoundError(f"{ds.root}: none of the requested episodes is present")
-    return [load_episode(ds, e, **options) for e in wanted]
+    return wanted
+
+
+def episode_name(ep: int) -> str:
+    """The name the reader gives episode index ``ep`` (``episode_000001``)."""
+    return f"episode_{ep:06d}"
+
+
+def episode_names(root: str | Path, episodes: Sequence[int] | None = None, skip_missing: bool = False,
+                  **options: Any) -> list[str]:
+    """Names of the episodes :func:`load_episodes` would read, from the metadata alone (no episode file opened)."""
+    check_reader_options({"episodes": episodes, "skip_missing": skip_missing, **options})
+    return [episode_name(e) for e in _wanted(LeRobotDataset(root), episodes, skip_missing)]
+
+
+def load_episodes(
+    root: str | Path,
+    episodes: Sequence[int] | None = None,
+    skip_missing: bool = False,
+    names: Collection[str] | None = None,
+    **options: Any,
+) -> list[Episode]:
+    """Episodes of the dataset at ``root`` (all listed ones when ``episodes`` is None; of those, only
+    the ones named in ``names`` when given: no other episode's files are opened).
+
+    A listed episode whose files are missing is an error unless ``skip_missing`` (then it is
+    skipped with a warning). ``options`` go to :func:`load_episode` (see :data:`READER_OPTIONS`).
+    """
+    check_reader_options({"episodes": episodes, "skip_missing": skip_missing, **options})
+    ds = LeRobotDataset(root)
+    return [load_episode(ds, e, **options) for e in _wanted(ds, episodes, skip_missing, names)]

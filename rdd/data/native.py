@@ -14,7 +14,7 @@ import hashlib
 import json
 import re
 import zipfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -309,14 +309,12 @@ def load_episode(directory: str | Path) -> Episode:
     )
 
 
-def load_episodes(folder: str | Path) -> list[Episode]:
-    """All native episodes under ``folder`` at any depth (e.g. ``<split>/<task>/<episode>/``),
-    sorted by relative path, or ``folder`` itself if it is one. Hidden (temporary) folders are skipped."""
-    folder = Path(folder)
+def _episode_dirs(folder: Path) -> list[Path]:
+    """Every native episode folder under ``folder`` at any depth, sorted by relative path."""
     if not folder.exists():
         raise FileNotFoundError(f"native episode path {folder} does not exist")
     if is_native_episode(folder):
-        return [load_episode(folder)]
+        return [folder]
     dirs = [
         p.parent
         for p in find_named(folder, EPISODE_FILE)
@@ -325,4 +323,19 @@ def load_episodes(folder: str | Path) -> list[Episode]:
     if not dirs:
         raise FileNotFoundError(f"{folder} holds no native episodes (no **/{EPISODE_FILE})")
     dirs.sort(key=lambda d: [natural_key(Path(part)) for part in d.relative_to(folder).parts])
+    return dirs
+
+
+def episode_names(folder: str | Path) -> list[str]:
+    """Names of the episodes :func:`load_episodes` would read; only each ``episode.json`` is opened."""
+    return [_read_header(d)["name"] for d in _episode_dirs(Path(folder))]
+
+
+def load_episodes(folder: str | Path, names: Collection[str] | None = None) -> list[Episode]:
+    """All native episodes under ``folder`` at any depth (e.g. ``<split>/<task>/<episode>/``),
+    sorted by relative path, or ``folder`` itself if it is one. Hidden (temporary) folders are skipped.
+    With ``names``, only those episodes are read (of the others only ``episode.json``, for the name)."""
+    dirs = _episode_dirs(Path(folder))
+    if names is not None:
+        dirs = [d for d in dirs if _read_header(d)["name"] in names]
     return [load_episode(d) for d in dirs]

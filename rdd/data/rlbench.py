@@ -10,7 +10,7 @@ from __future__ import annotations
 import io
 import pickle
 import re
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -230,20 +230,29 @@ def _natural_key(p: Path) -> list:
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(p))]
 
 
-def load_episodes(path: str | Path, views: Sequence[str] | None = ("front", "wrist")) -> list[Episode]:
-    """Every RLBench episode under ``path`` (an episode folder, or any folder above episodes)."""
-    path = Path(path)
+def _episode_dirs(path: Path) -> list[tuple[str | None, Path]]:
+    """``(name, folder)`` of every episode under ``path``; name None means the folder's own name."""
     if not path.exists():
         raise FileNotFoundError(f"RLBench path {path} does not exist")
     if (path / LOW_DIM_FILE).is_file():
-        return [load_episode(path, views)]
+        return [(None, path)]
     dirs = sorted({p.parent for p in find_named(path, LOW_DIM_FILE)}, key=_natural_key)
     if not dirs:
         raise FileNotFoundError(f"{path} holds no RLBench episodes (no */{LOW_DIM_FILE})")
     names = [d.name for d in dirs]
     unique = len(set(names)) == len(names)
     # Prefix the task (and variation folder) only when bare episode names would collide.
-    return [
-        load_episode(d, views, name=None if unique else "/".join(d.relative_to(path).parts))
-        for d in dirs
-    ]
+    return [(None if unique else "/".join(d.relative_to(path).parts), d) for d in dirs]
+
+
+def episode_names(path: str | Path, views: Sequence[str] | None = ("front", "wrist")) -> list[str]:
+    """Names of the episodes :func:`load_episodes` would read, from the folder names alone (nothing opened)."""
+    return [name or d.name for name, d in _episode_dirs(Path(path))]
+
+
+def load_episodes(path: str | Path, views: Sequence[str] | None = ("front", "wrist"),
+                  names: Collection[str] | None = None) -> list[Episode]:
+    """Every RLBench episode under ``path`` (an episode folder, or any folder above episodes); only
+    those named in ``names`` when given, and no other episode's files are opened."""
+    return [load_episode(d, views, name=name) for name, d in _episode_dirs(Path(path))
+            if names is None or (name or d.name) in names]
