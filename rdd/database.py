@@ -137,8 +137,8 @@ class SubtaskDatabase:
         kept in ``self.frames`` (leave-one-out calibration decomposes them).
         ``segmentations``: one list of segments per episode, or None to use each ``episode.segments``.
         Instructions come from ``instructions`` when given, else from ``episode.instructions`` when
-        the segmentation is the episode's own (or the episode has none), else the episode's goal
-        (e.g. an RLBench variation description or a LeRobot task string) for every segment.
+        the segmentation is the episode's own (or the episode has none), else empty: the episode's goal
+        (an RLBench variation description, a LeRobot task string) is kept as the entry's task only.
         ``normalize_views=False`` concatenates raw per-view embeddings (the official code's layout).
         """
         return cls.from_entries(

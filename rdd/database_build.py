@@ -59,7 +59,9 @@ def segment_entries(
             # the episode's instructions describe this segmentation (its own, or it has none)
             instr = list(ep.instructions)
         else:
-            instr = [ep.goal or ""] * len(segs)
+            # An unannotated segment has no sub-task: the episode's goal (a LeRobot task string, an
+            # RLBench variation description) stays in the entry's task, never its instruction.
+            instr = [""] * len(segs)
         if len(instr) != len(segs):
             raise ValueError(
                 f"episode {ep.name!r}: {len(instr)} instructions for {len(segs)} segments"

@@ -202,7 +202,7 @@ def test_build_encodes_only_boundary_frames_unless_kept(episodes):
         SubtaskDatabase.build(episodes, None, enc, keep_frames=["nope"])
 
 
-def test_raw_views_and_goal_instructions(episodes):
+def test_raw_views_and_goal_is_no_instruction(episodes):
     enc = ProjectionEncoder()
     raw = SubtaskDatabase.build(episodes, None, enc, normalize_views=False)
     f0 = enc.encode(episodes[0].frames("front", [0]))[0]
@@ -211,7 +211,8 @@ def test_raw_views_and_goal_instructions(episodes):
     for ep, goal in zip(episodes, ("open the drawer", "close it"), strict=True):
         ep.instructions, ep.goal = None, goal
     db = SubtaskDatabase.build(episodes, None, enc)
-    assert db.labels == ["open the drawer"] * 2 + ["close it"] * 3
+    # an unannotated segment has no sub-task: the goal is the episode's, not an instruction
+    assert db.labels == [""] * 5 and db.tasks == [episodes[0].task] * 2 + [episodes[1].task] * 3
 
 
 def test_save_refuses_to_replace_unless_asked_and_keeps_frames(tmp_path, episodes):
