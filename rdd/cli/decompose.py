@@ -187,6 +187,12 @@ def cmd_decompose(args: argparse.Namespace) -> int:
                                inputs=[*inputs, ("--out", args.out)])
     if args.fallback_instruction is not None:
         fallback_instruction(args.fallback_instruction, Episode(name="check", views={}), 0, 1, (0, 1))
+    if lerobot_out is not None and args.lerobot_version == "2.1":
+        from rdd.data.lerobot_dataset import LeRobotDataset
+
+        if LeRobotDataset(args.data).version == "v3.0":
+            raise CLIError(f"--lerobot-version 2.1: --data {args.data} is a v3.0 dataset; its copy is written as "
+                           "v3.0 (drop the option)")
     episodes = load_data(args)
     decomposer, config = make_decomposer(args, episodes[0])
     labeler = make_labeler(args)
@@ -204,9 +210,11 @@ def cmd_decompose(args: argparse.Namespace) -> int:
         from rdd.data.lerobot_write import write_subtasks
 
         subtasks = lerobot_subtasks(episodes, records, args.decomposer)
-        copy_parts = parts_folder(lerobot_out) / f"copy-{digest([str(args.data), sorted(subtasks.items())])[:24]}"
-        write_subtasks(args.data, lerobot_out, subtasks, staging=copy_parts)
-        print(f"wrote {lerobot_out}: LeRobot dataset with sub-tasks of {len(subtasks)} episodes "
+        version = f"v{args.lerobot_version}"
+        key = digest([str(args.data), sorted(subtasks.items()), version])[:24]
+        write_subtasks(args.data, lerobot_out, subtasks, staging=parts_folder(lerobot_out) / f"copy-{key}",
+                       version=version)
+        print(f"wrote {lerobot_out}: LeRobot {version} dataset with sub-tasks of {len(subtasks)} episodes "
               "(language_persistent)")
     if out is not None:
         write_json_atomic(out, {"config": config, "episodes": records}, overwrite=args.force)
@@ -240,6 +248,9 @@ def add_parser(sub) -> None:
     p.add_argument("--write-lerobot", metavar="DIR",
                    help="also write DIR, a copy of the LeRobot dataset --data whose language_persistent "
                         "column carries the sub-tasks (new folder; never the source)")
+    p.add_argument("--lerobot-version", choices=("3.0", "2.1"), default="3.0",
+                   help="layout of the --write-lerobot copy (default 3.0, also from a v2.1 source, as current "
+                        "LeRobot reads it; 2.1 keeps a v2.1 source's layout)")
     p.add_argument("--labeler", choices=("retrieval",),
                    help="name segments the decomposer gives no instruction: retrieval = the instruction of "
                         "the nearest entry of --label-db")

@@ -34,7 +34,7 @@ from rdd.progress import EpisodeBar, show_progress
 
 # Arguments that do not change any episode's result: where outputs go, which episodes are chosen
 # (a part is the result of one episode), the embedding cache (a cache, not an input), parallelism.
-NOT_SETTINGS = frozenset({"out", "write_lerobot", "force", "workers", "include", "exclude", "cache_dir",
+NOT_SETTINGS = frozenset({"out", "write_lerobot", "lerobot_version", "force", "workers", "include", "exclude", "cache_dir",
                           "no_cache", "verbose", "func", "command"})
 
 

@@ -28,6 +28,7 @@ import errno
 import json
 import os
 import shutil
+import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -211,6 +212,7 @@ def write_subtasks(
     subtasks: Mapping[int, tuple[Sequence[Segment], Sequence[str]]],
     link: bool = True,
     staging: str | Path | None = None,
+    version: str | None = None,
 ) -> Path:
     """Write OUT, a copy of the dataset at ``source`` whose ``language_persistent`` column carries
     ``subtasks`` (episode index -> (segments, instructions)); returns OUT. ``link``: hard-link the
@@ -219,13 +221,30 @@ def write_subtasks(
     ``staging``: a folder to build the copy in, kept when the writing stops, so that a rerun with the
     same source and sub-tasks (the caller keys the folder by them) writes only the files still missing
     (each data parquet file is rewritten once); renamed to OUT when complete. Without it the copy is
-    built in a temporary folder and a stopped run leaves nothing."""
+    built in a temporary folder and a stopped run leaves nothing.
+
+    ``version``: the copy's layout, "v2.1" or "v3.0" (None: the source's). A v2.1 source is first
+    laid out as v3.0 (:func:`rdd.data.lerobot_convert.convert_to_v30`) in a temporary folder beside
+    OUT; a v3.0 source cannot be written as v2.1."""
     _need("pyarrow")
     ds = LeRobotDataset(source)
     src_root, out = ds.root.resolve(), Path(out)
     target = out.resolve()
     if target == src_root or _inside(target, src_root) or _inside(src_root, target):
         raise ValueError(f"--write-lerobot {out}: refusing to write into (or over) the source dataset {ds.root}")
+    if version not in (None, "v2.1", "v3.0"):
+        raise ValueError(f"LeRobot version {version!r}: choose v2.1 or v3.0")
+    if version is not None and version != ds.version:
+        if ds.version == "v3.0":
+            raise ValueError(f"{ds.root} is a v3.0 dataset; its copy cannot be written as {version}")
+        from rdd.data.lerobot_convert import convert_to_v30
+
+        if out.exists():
+            raise TargetExistsError(f"{out} already exists (refusing to replace it)")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.name}.v30-") as tmp:
+            converted = convert_to_v30(ds, Path(tmp) / "dataset", link=link)
+            return write_subtasks(converted, out, subtasks, link=link, staging=staging)
     unknown = sorted(set(subtasks) - set(ds.episodes))
     if unknown:
         raise ValueError(f"{ds.root}: episodes {unknown} are not listed in its metadata")

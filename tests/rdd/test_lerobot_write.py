@@ -150,7 +150,8 @@ def test_round_trip_through_the_cli(lerobot_factory, tmp_path, capsys, version):
     assert "--fallback-instruction" in capsys.readouterr().err and not out.exists()
     assert run("decompose", "--format", "lerobot", "--data", src, "--decomposer", "uniform",
                "--option", "n_segments=3", "--fallback-instruction", "{task}, step {index} of {count}",
-               "--out", tmp_path / "u.json", "--write-lerobot", out) == 0
+               "--out", tmp_path / "u.json", "--write-lerobot", out,
+               *(["--lerobot-version", "2.1"] if version == "v2.1" else [])) == 0  # the source's layout
     written = json.loads((tmp_path / "u.json").read_text())["episodes"]
     subtasks = {int(r["episode"].split("_")[-1]): ([tuple(s) for s in r["segments"]], r["instructions"])
                 for r in written}
