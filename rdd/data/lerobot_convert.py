@@ -27,24 +27,13 @@ from typing import Any
 
 from rdd.atomic import write_text_atomic
 from rdd.data.lerobot_dataset import LeRobotDataset, _need
+from rdd.data.lerobot_write import _link_or_copy
 
 log = logging.getLogger(__name__)
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
 V21_ONLY = ("total_chunks", "total_videos")
 V21_META = ("episodes.jsonl", "tasks.jsonl", "episodes_stats.jsonl", "info.json")
-
-
-def _link_or_copy(src: Path, dst: Path, link: bool) -> None:
-    """Hard-link ``src`` at ``dst`` when allowed (media is never edited in place), else copy it."""
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    if link:
-        try:
-            os.link(src, dst)
-            return
-        except OSError:
-            pass
-    shutil.copyfile(src, dst)
 
 
 def _episode_stats(ds: LeRobotDataset) -> dict[int, dict[str, Any]]:
