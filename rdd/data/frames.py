@@ -3,27 +3,58 @@
 from __future__ import annotations
 
 import hashlib
+import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
 from rdd.errors import InputError
 
+H = TypeVar("H")  # a hash object: hashlib's or xxhash's (update, hexdigest)
 
-def update_with_file(h: hashlib._Hash, path: str | Path) -> hashlib._Hash:
-    """Feed the bytes of ``path`` into hash ``h`` in 1 MiB blocks (no whole-file read); return ``h``."""
+
+def update_with_file(h: H, path: str | Path, block: int = 1 << 20) -> H:
+    """Feed the bytes of ``path`` into hash ``h`` in ``block``-byte reads (no whole-file read); return ``h``."""
     with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
+        for data in iter(lambda: fh.read(block), b""):
+            h.update(data)
     return h
+
+
+# file_digest's memo: (real path, device, inode, size, mtime) -> digest, for this process's lifetime.
+_DIGESTS: dict[tuple, str] = {}
+
+
+def file_digest(path: str | Path) -> str:
+    """xxHash3-128 of the bytes of ``path``, computed once per process for each version of the file.
+
+    The memo is keyed by the resolved path, inode, size and modification time (ns), so a rewritten
+    file is hashed again. xxh3 ran at 10.7 GB/s here against SHA-256's 1.3 GB/s; the digest only
+    has to notice changed frames, not resist an adversary.
+    """
+    st = os.stat(path)
+    key = (os.path.realpath(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+    digest = _DIGESTS.get(key)
+    if digest is None:
+        try:
+            import xxhash
+        except ImportError as exc:
+            raise ImportError("hashing video files needs xxhash: pip install 'rdd-harness[data]'") from exc
+        digest = "xxh3_128:" + update_with_file(xxhash.xxh3_128(), path, block=8 << 20).hexdigest()
+        _DIGESTS[key] = digest
+    return digest
 
 
 @runtime_checkable
 class FrameSource(Protocol):
-    """A sequence of uint8 RGB frames (H, W, 3) that loads on demand."""
+    """A sequence of uint8 RGB frames (H, W, 3) that loads on demand.
+
+    A source that decodes may also offer ``iter_load(indices, chunk)``: the frames of ``load(indices)``
+    in chunks as they are decoded, so encoding overlaps decoding (``rdd.encoders._stream``).
+    """
 
     def __len__(self) -> int: ...
 
@@ -117,6 +148,12 @@ class ImageFileFrames:
         if not out:
             return np.zeros((0, 0, 0, 3), dtype=np.uint8)
         return np.stack(out)
+
+    def iter_load(self, indices: Sequence[int] | None = None, chunk: int = 32) -> Iterator[np.ndarray]:
+        """The frames of ``load(indices)`` in order, ``chunk`` at a time."""
+        idx = list(range(len(self.paths)) if indices is None else indices)
+        for start in range(0, len(idx), chunk):
+            yield self.load(idx[start : start + chunk])
 
     def fingerprint(self) -> str:
         """SHA-256 over the files' bytes in order."""

@@ -20,6 +20,7 @@ import numpy as np
 
 from rdd.atomic import atomic_file
 from rdd.data.episode import Episode
+from rdd.encoders._stream import encode_view
 from rdd.encoders.base import Encoder
 
 log = logging.getLogger(__name__)
@@ -94,7 +95,7 @@ class EmbeddingCache:
                 return emb
             self.stats.corrupt += 1
         self.stats.misses += 1
-        emb = np.asarray(encoder.encode(episode.frames(view)), dtype=np.float32)
+        emb = np.asarray(encode_view(encoder, episode, view), dtype=np.float32)
         if emb.shape != expected_shape:
             raise RuntimeError(
                 f"encoder {encoder.name!r} returned shape {emb.shape} for episode {episode.name!r} "

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from rdd.data.episode import Episode
+from rdd.encoders._stream import encode_view
 from rdd.encoders.base import Encoder
 
 DEFAULT_VIEWS: tuple[str, ...] = ("front", "wrist")
@@ -54,9 +55,9 @@ def episode_frame_vectors(
     for view in views:
         if idx is None:
             emb = (cache.get_or_compute(episode, encoder, view) if cache is not None
-                   else encoder.encode(episode.frames(view)))
+                   else encode_view(encoder, episode, view))
         else:
             full = cache.get(episode, encoder, view) if cache is not None else None
-            emb = full[idx] if full is not None else encoder.encode(episode.frames(view, idx))
+            emb = full[idx] if full is not None else encode_view(encoder, episode, view, idx)
         per_view.append(emb)
     return concat_views(per_view, normalize=normalize)
