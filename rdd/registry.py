@@ -149,11 +149,12 @@ def check_option_names(group: str, fn: Any, options: Mapping[str, Any], reserved
         raise ValueError(f"{group} {owner}: unknown option(s) {unknown}; accepted: {', '.join(accepted)}")
 
 
-def construct(fn: Any, runtime: Mapping[str, Any], owner: str, **options: Any) -> Any:
+def construct(fn: Any, runtime: Mapping[str, Any], owner: str, /, **options: Any) -> Any:
     """Call the component ``fn`` with ``options`` and exactly the runtime objects it takes.
 
     ``runtime`` must hold every runtime object ``fn`` takes (:func:`runtime_names`) and no other;
-    ``owner`` names the component in that error.
+    ``owner`` names the component in that error. The three are positional-only, so an option may
+    share their names (the encoders' ``runtime`` option).
     """
     wanted = runtime_names(fn)
     if set(runtime) != set(wanted):

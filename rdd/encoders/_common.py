@@ -71,7 +71,8 @@ class TorchEncoder(Encoder):
     """An encoder made of a numpy->tensor ``preprocess`` and a torch ``forward``, run in chunks.
 
     Subclasses (or builders) supply the model; this class handles validation, batching, threads,
-    ``torch.inference_mode`` and the weights hash.
+    ``torch.inference_mode``, the weights hash and where the forward runs (``runtime``: auto, onnx
+    or torch; ``device``: auto, cpu or cuda; see ``rdd.encoders._runtime``).
     """
 
     def __init__(
@@ -86,7 +87,12 @@ class TorchEncoder(Encoder):
         batch_size: int = 32,
         num_threads: int | None = None,
         checkpoint: str | None = None,
+        runtime: str = "auto",
+        device: str = "auto",
     ):
+        from rdd.encoders._runtime import check_runtime
+
+        check_runtime(runtime, device, name)
         self.name = name
         self.dim = int(dim)
         self.model = model.eval()
@@ -96,7 +102,19 @@ class TorchEncoder(Encoder):
         self.batch_size = check_batch_size(batch_size, name)
         self.num_threads = num_threads
         self.checkpoint = checkpoint
+        self.runtime = runtime
+        self.device = device
+        self._runner = None  # chosen on the first batch (rdd.encoders._runtime.make_runner)
         self._weights_id: str | None = None
+
+    def __getstate__(self) -> dict:
+        # An ONNX Runtime session does not pickle; a copy (e.g. in a worker process) makes its own.
+        return {**self.__dict__, "_runner": None}
+
+    @property
+    def active_runtime(self) -> str | None:
+        """"onnx" or "torch" once the first batch has been encoded (None before)."""
+        return None if self._runner is None else self._runner.name
 
     @property
     def weights_id(self) -> str:
@@ -112,12 +130,15 @@ class TorchEncoder(Encoder):
         images = check_images(images, self.name)
         if images.shape[0] == 0:
             return np.zeros((0, self.dim), dtype=np.float32)
+        from rdd.encoders._runtime import make_runner
+
         outs = []
         with torch_threads(self.num_threads), torch.inference_mode():
             for start in range(0, images.shape[0], self.batch_size):
                 x = self._preprocess(images[start : start + self.batch_size])
-                y = self._forward(x)
-                y = y.reshape(y.shape[0], -1).float().cpu().numpy()
+                if self._runner is None:
+                    self._runner = make_runner(self, x)
+                y = self._runner(x)
                 if y.shape[1] != self.dim:
                     raise RuntimeError(f"{self.name}: model produced {y.shape[1]}-d features, expected {self.dim}")
                 outs.append(y)

