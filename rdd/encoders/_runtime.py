@@ -106,12 +106,15 @@ class TorchRunner:
 
         self.device = torch.device(device)
         self.forward = encoder._forward
-        encoder.model.to(self.device)
-        # Channels-last let oneDNN pick faster convolutions: EfficientNet-Lite0 at batch 32,
-        # 2 threads, 38.7 images/s vs 25.0 contiguous (9.1 vs 5.6 on a loaded run), same features.
         self.channels_last = self.device.type == "cpu"
-        if self.channels_last:
-            encoder.model.to(memory_format=torch.channels_last)
+        # The runner is made inside encode's inference mode; weights moved or re-laid out there
+        # would become inference tensors, which autograd (tracing, finetuning the model) refuses.
+        with torch.inference_mode(False):
+            encoder.model.to(self.device)
+            # Channels-last let oneDNN pick faster convolutions: EfficientNet-Lite0 at batch 32,
+            # 2 threads, 38.7 images/s vs 25.0 contiguous (9.1 vs 5.6 on a loaded run), same features.
+            if self.channels_last:
+                encoder.model.to(memory_format=torch.channels_last)
 
     def __call__(self, x: torch.Tensor) -> np.ndarray:
         """Features (N, D) of the preprocessed batch ``x``."""
