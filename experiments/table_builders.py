@@ -36,6 +36,11 @@ def _latest_per_method_seed(runs: Sequence[RunRecord]) -> dict[tuple[str, int], 
     return out
 
 
+def _spread_note(n_seeds: int) -> str:
+    """The end of a table note's sentence: what ± means, said only when there is a spread to show."""
+    return "; ± is the sample std over seeds." if n_seeds > 1 else "."
+
+
 def _tasks_in_order(per_task_maps: Iterable[dict]) -> list[str]:
     """Task names in first-seen order over the runs' per-task maps."""
     return list(dict.fromkeys(task for m in per_task_maps for task in m))
@@ -92,7 +97,7 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     note = (
         f"Success rate (%) over {len(seeds)} seed(s) {seeds}, {'/'.join(map(str, n_eps))} "
         "evaluation episode(s) per task and seed"
-        + ("; ± is the sample std over seeds." if len(seeds) > 1 else ".")
+        + _spread_note(len(seeds))
         + (" Avg. Rank: methods ranked per task and seed (ties share the mean rank)." if ranked else "")
     )
     return Table(title, header, rows, bold, note)
@@ -163,7 +168,7 @@ def miou_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     n_demos = sorted({int(r.data["decomposition"].get("num_demos", 0)) for r in runs})
     note = (f"mIoU (%) of each decomposition against the expert keyframe segmentation on "
             f"{'/'.join(map(str, n_demos))} validation demonstration(s)"
-            + ("; ± is the sample std over seeds." if len({s for _, s in by_key}) > 1 else ".")
+            + _spread_note(len({s for _, s in by_key}))
             + (" s / demo: mean wall time of one decomposition, encoding the demo's frames included"
                " when no earlier job had cached them." if with_time else "")
             + (" novelty Δ: mean ± std over demos of RDD's novelty score (paper Eq. 3.6)." if with_novelty else ""))
@@ -201,7 +206,7 @@ def planner_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     deps = sorted({int(r.data["planner_eval"].get("image_dependent_boundaries", 0)) for r in runs})
     note = (f"Exact match (%) of the next instruction at {'/'.join(map(str, counts))} segment starts "
             f"of held-out test-split episodes; {len(seeds)} seed(s) {seeds}"
-            + ("; ± is the sample std over seeds. " if len(seeds) > 1 else ". ") +
+            + _spread_note(len(seeds)) + " " +
             f"Image-dependent: the {'/'.join(map(str, deps))} of them whose goal and previous instruction "
             "also precede another answer in the same task (only the image can settle them).")
     return Table(title, header, rows, bold, note)
