@@ -72,8 +72,8 @@ def _entry(name: str) -> str:
 
 def _imports(node: ast.AST, module: str, root: Path) -> Iterator[str]:
     """Entries ``node`` imports: modules, and ``FACADE:function`` for each facade call it makes."""
-    package = module if module_file(module, root) and module_file(module, root).name == "__init__.py" \
-        else module.rpartition(".")[0]
+    path = module_file(module, root)
+    package = module if path is not None and path.name == "__init__.py" else module.rpartition(".")[0]
     facade_aliases = set()
     for n in ast.walk(node):
         if isinstance(n, ast.Import):
