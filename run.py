@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import importlib.util
 import logging
+import os
 import sys
+from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
@@ -20,6 +22,7 @@ from experiments.interrupts import run_stoppable
 from rdd.errors import InputError
 
 log = logging.getLogger("run")
+CHECKOUT = str(Path(__file__).resolve().parent)
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
@@ -61,6 +64,18 @@ def check_launcher(argv: list[str]) -> None:
             sys.exit(f"hydra/launcher={name} needs the cluster extra ({module} is missing): {INSTALL_LINE}")
 
 
+def export_checkout() -> None:
+    """Put this checkout on ``PYTHONPATH`` for the processes a run starts.
+
+    The harness is not installed (``pip install .`` installs only ``rdd``): this script's folder is
+    on its own path, and this makes it the path of its sweep jobs too (joblib workers, Slurm jobs
+    through submitit, a Ray cluster started here), wherever the command was started.
+    """
+    paths = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    if CHECKOUT not in paths:
+        os.environ["PYTHONPATH"] = os.pathsep.join([*paths, CHECKOUT])
+
+
 def _output_dir() -> str:
     from hydra.core.hydra_config import HydraConfig
 
@@ -77,5 +92,6 @@ if __name__ == "__main__":
         print(help_text())
         sys.exit(0)
     check_launcher(sys.argv[1:])
+    export_checkout()
     # Ctrl-C and SIGTERM: one line after the cleanups (locks, temporary folders), exit 130 / 143.
     sys.exit(run_stoppable(main))

@@ -11,7 +11,7 @@ try:
         from pybullet_utils import bullet_client
 except ImportError as exc:  # pragma: no cover - depends on the install
     raise ImportError(
-        "the envs package needs pybullet: pip install 'rdd-harness[sim]'"
+        "the envs package needs pybullet: make install (or pip install -c constraints.txt -e '.[sim]')"
     ) from exc
 
 __all__ = ["bullet_client", "pb", "pybullet_data"]

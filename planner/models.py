@@ -34,7 +34,7 @@ def _require(module: str) -> None:
     try:
         __import__(module)
     except ImportError as exc:  # pragma: no cover - depends on the installation
-        raise ImportError(f"the planner needs {module}: pip install 'rdd-harness[planner]'") from exc
+        raise ImportError(f"the planner needs {module}: make install (or pip install -c constraints.txt -e '.[planner]')") from exc
 
 
 def train_tokenizer(corpus: Iterable[str], vocab_size: int):

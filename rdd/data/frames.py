@@ -42,7 +42,7 @@ def file_digest(path: str | Path) -> str:
         try:
             import xxhash
         except ImportError as exc:
-            raise ImportError("hashing video files needs xxhash: pip install 'rdd-harness[data]'") from exc
+            raise ImportError("hashing video files needs xxhash: pip install 'rdd[data]'") from exc
         digest = "xxh3_128:" + update_with_file(xxhash.xxh3_128(), path, block=8 << 20).hexdigest()
         _DIGESTS[key] = digest
     return digest

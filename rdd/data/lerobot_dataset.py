@@ -23,7 +23,7 @@ def _need(module: str, extra: str = "data"):
         return __import__(module)
     except ImportError as exc:
         raise ImportError(
-            f"reading LeRobot datasets needs {module}: pip install 'rdd-harness[{extra}]'"
+            f"reading LeRobot datasets needs {module}: pip install 'rdd[{extra}]'"
         ) from exc
 
 

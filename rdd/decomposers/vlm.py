@@ -211,7 +211,7 @@ class TransformersVLMBackend:
             import torch
             from transformers import AutoModelForImageTextToText, AutoProcessor
         except ImportError as exc:
-            raise ImportError("the transformers VLM backend needs: pip install 'rdd-harness[planner]'") from exc
+            raise ImportError("the transformers VLM backend needs: pip install 'rdd[vlm]'") from exc
         self.torch = torch
         self.processor = AutoProcessor.from_pretrained(str(path), local_files_only=True)
         self.model = AutoModelForImageTextToText.from_pretrained(str(path), local_files_only=True)

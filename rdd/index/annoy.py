@@ -22,7 +22,7 @@ def _require_annoy():
         from annoy import AnnoyIndex
     except ImportError as exc:  # optional extra
         raise ImportError(
-            "the annoy index needs the 'annoy' package: pip install 'rdd-harness[index]'"
+            "the annoy index needs the 'annoy' package: pip install 'rdd[index]'"
         ) from exc
     return AnnoyIndex
 

@@ -23,7 +23,7 @@ def _require_faiss():
         import faiss
     except ImportError as exc:  # optional extra
         raise ImportError(
-            "the faiss index needs faiss: pip install 'rdd-harness[index]' (or faiss-gpu)"
+            "the faiss index needs faiss: pip install 'rdd[index]' (or faiss-gpu)"
         ) from exc
     return faiss
 
