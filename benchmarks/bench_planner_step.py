@@ -18,7 +18,9 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "planner"))
+ROOT = Path(__file__).resolve().parents[1]
+# The harness (planner/) is not installed: import it, and the tests' helpers, from this checkout.
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "planner")]
 
 
 def _seconds(fn, repeats: int) -> float:
