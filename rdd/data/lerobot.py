@@ -23,7 +23,7 @@ from rdd.data.episode import Episode
 from rdd.data.lerobot_checks import check_finite, check_length, check_timestamps
 from rdd.data.lerobot_dataset import LeRobotDataset, _column, _need
 from rdd.data.lerobot_language import read_subtasks
-from rdd.data.lerobot_layout import feature_names, hand_flags, infer_layout
+from rdd.data.lerobot_layout import arm_sides, feature_names, hand_flags, hand_levels, infer_layout
 from rdd.data.lerobot_video import VideoFrames
 
 log = logging.getLogger(__name__)
@@ -152,6 +152,8 @@ def load_episode(
     layout: dict[str, Any] = {}
     state_names = feature_names(ds.info, state_key)
     joint_positions = joint_velocities = None
+    arms: dict[str, list[int]] = {}
+    levels = None
     if state_key in table.column_names:
         state = _column(table, state_key, data_path).astype(np.float64)
         state = state if state.ndim == 2 else state[:, None]
@@ -167,6 +169,8 @@ def load_episode(
                 raise ValueError(f"reader option joint_indices {bad} out of range for {data_path}:{state_key} "
                                  f"with {state.shape[1]} dims")
         joint_positions = state if joint_indices is None else state[:, list(joint_indices)]
+        if state_names is not None and len(state_names) == state.shape[1]:
+            arms = arm_sides(state_names, range(state.shape[1]) if joint_indices is None else joint_indices)
         if n > 1:
             joint_velocities = np.gradient(joint_positions, axis=0) * ds.fps
         else:
@@ -204,6 +208,7 @@ def load_episode(
             raise KeyError(f"{data_path}: no column {source_key!r} (reader option gripper_key)")
         values = _column(table, source_key, data_path).astype(np.float64)
         check_finite(values, where, source_key)
+        levels = hand_levels(values, groups, f"{data_path}:{source_key}")
         flags = hand_flags(values, groups,
                            float(gripper_threshold), float(gripper_hysteresis), bool(gripper_open_above),
                            f"{data_path}:{source_key}")
@@ -244,6 +249,10 @@ def load_episode(
                 "key": source_key, "indices": groups, "sides": sides, "threshold": gripper_threshold,
                 "hysteresis": gripper_hysteresis, "open_above": gripper_open_above,
             },
+            # Per-hand levels (T, H; the order of gripper.indices) and each arm's columns of
+            # joint_positions: the signals the expert rule's hand events and the signals labeler read.
+            "hand_levels": levels,
+            "arm_sides": arms,
         },
     )
 

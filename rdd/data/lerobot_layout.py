@@ -42,6 +42,28 @@ def infer_layout(names: Sequence[str]) -> tuple[list[int], dict[str, list[int]]]
     return arm, hands
 
 
+def arm_sides(names: Sequence[str], arm: Sequence[int]) -> dict[str, list[int]]:
+    """Positions within ``arm`` (the arm dims) of each side's joints, for names that say left or right."""
+    sides: dict[str, list[int]] = {}
+    for pos, i in enumerate(arm):
+        side = next((s for s in SIDES if s in names[i].lower()), None)
+        if side is not None:
+            sides.setdefault(side, []).append(pos)
+    return sides
+
+
+def hand_levels(values: np.ndarray, groups: Sequence[Sequence[int]], where: str) -> np.ndarray:
+    """(T, H) level of each hand: the mean of its dims."""
+    v = values if values.ndim == 2 else values[:, None]
+    levels = np.zeros((v.shape[0], len(groups)))
+    for h, group in enumerate(groups):
+        bad = [i for i in group if not -v.shape[1] <= i < v.shape[1]]
+        if bad:
+            raise ValueError(f"reader option gripper_indices {bad} out of range for {where} with {v.shape[1]} dims")
+        levels[:, h] = v[:, list(group)].mean(axis=1)
+    return levels
+
+
 def hand_flags(
     values: np.ndarray, groups: Sequence[Sequence[int]], threshold: float, hysteresis: float, open_above: bool,
     where: str,
@@ -51,13 +73,10 @@ def hand_flags(
     A hand switches state only when its mean passes ``threshold +- hysteresis``, so a resting hand
     whose level hovers near the threshold does not flicker between open and closed.
     """
-    v = values if values.ndim == 2 else values[:, None]
-    flags = np.zeros((v.shape[0], len(groups)))
-    for h, group in enumerate(groups):
-        bad = [i for i in group if not -v.shape[1] <= i < v.shape[1]]
-        if bad:
-            raise ValueError(f"reader option gripper_indices {bad} out of range for {where} with {v.shape[1]} dims")
-        level = v[:, list(group)].mean(axis=1)
+    levels = hand_levels(values, groups, where)
+    flags = np.zeros(levels.shape)
+    for h in range(levels.shape[1]):
+        level = levels[:, h]
         if not open_above:
             level = -level
         thr = threshold if open_above else -threshold

@@ -5,6 +5,7 @@ Keyframes are where the gripper opens or closes, where the arm comes to rest, an
 
 from __future__ import annotations
 
+from itertools import pairwise
 from typing import Literal
 
 import numpy as np
@@ -12,6 +13,14 @@ import numpy as np
 from rdd.checks import number, one_of
 from rdd.data.episode import Episode
 from rdd.decomposers.base import Decomposer, Decomposition
+from rdd.hand_events import (
+    episode_moves,
+    event_timescale,
+    hand_arm_cuts,
+    sample_period,
+    smoothed_speed,
+    still_runs,
+)
 from rdd.segments import keyframes_to_segments
 
 
@@ -77,14 +86,6 @@ def ee_velocities(ee_poses: np.ndarray) -> np.ndarray:
     return vel
 
 
-def still_runs(speed: np.ndarray, threshold: float, min_frames: int) -> list[tuple[int, int]]:
-    """Maximal runs ``[a, b)`` of at least ``min_frames`` frames with ``speed <= threshold``."""
-    still = np.concatenate([[False], np.asarray(speed) <= threshold, [False]])
-    edges = np.flatnonzero(np.diff(still.astype(np.int8)))
-    runs = list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
-    return [(a, b) for a, b in runs if b - a >= min_frames]
-
-
 def scale_aware_keyframes(
     gripper_open: np.ndarray,
     velocities: np.ndarray,
@@ -126,6 +127,43 @@ def scale_aware_keyframes(
 
 
 STOP_TESTS = ("auto", "absolute", "scale")
+RULES = ("auto", "keyframes", "hands")
+
+
+def uses_hand_rule(episode: Episode) -> bool:
+    """Whether ``rule=auto`` cuts ``episode`` at hand events: it carries per-hand levels (LeRobot) of
+    two hands or of a hand with several dims (a dexterous hand); a single gripper keeps the keyframe rule."""
+    levels = episode.meta.get("hand_levels")
+    groups = (episode.meta.get("gripper") or {}).get("indices") or []
+    return levels is not None and (len(groups) > 1 or any(len(g) > 1 for g in groups))
+
+
+def hand_rule_segments(episode: Episode, delta: float, stopping_fraction: float, smooth_s: float,
+                       min_stop_s: float) -> tuple[list[tuple[int, int]], dict]:
+    """The hands-and-arms rule (docs/lerobot.md): cuts at each hand's state changes and at arm rests
+    between them, no segment shorter than the episode's event timescale unless a hand changes state."""
+    levels = episode.meta.get("hand_levels")
+    if levels is None:
+        if episode.gripper_open is None:
+            raise ValueError(f"episode {episode.name!r} has neither per-hand levels nor a gripper_open signal "
+                             "for the expert option rule=hands")
+        levels = episode.gripper_open[:, None]
+    open_above = bool((episode.meta.get("gripper") or {}).get("open_above", True))
+    moves = episode_moves(levels, delta, open_above)
+    fps = float(episode.meta.get("fps") or 0)
+    # The data's own event timescale: how long its hands take to change state (else min_stop_s).
+    measured = event_timescale(moves)
+    min_len = measured if measured is not None else max(1, round(min_stop_s * fps) if fps else 1)
+    t = episode.num_frames
+    v = episode.joint_velocities if episode.joint_velocities is not None else np.zeros((t, 0))
+    speed = smoothed_speed(v, max(1, round(smooth_s * fps)) if fps else 1)
+    floor = 2 * sample_period(levels)
+    hand_cuts, arm_cuts = hand_arm_cuts(moves, speed, min_len, stopping_fraction, floor)
+    bounds = [0, *sorted(set(hand_cuts) | set(arm_cuts)), t]
+    meta = {"hand_cuts": hand_cuts, "arm_cuts": arm_cuts, "event_timescale": min_len, "min_frames": floor,
+            "event_timescale_measured": measured is not None,
+            "hand_events": [{"hand": m.hand, "frame": m.frame, "opens": m.opens} for m in moves]}
+    return list(pairwise(bounds)), meta
 
 
 class ExpertDecomposer(Decomposer):
@@ -134,6 +172,9 @@ class ExpertDecomposer(Decomposer):
     ``stop_test``: ``absolute`` is RLBench's rule (``|v| <= stopping_delta`` per joint, per control
     step); ``scale`` is :func:`scale_aware_keyframes` in the dataset's own units and fps (for recorded
     robot data); ``auto`` picks ``scale`` when the episode declares its fps (LeRobot), else ``absolute``.
+    ``rule``: ``keyframes`` is that keyframe rule; ``hands`` is :func:`hand_rule_segments` (hand state
+    changes of at least ``hand_delta`` in the hand level's units, arm rests between them); ``auto``
+    picks ``hands`` for episodes with dexterous or two hands (:func:`uses_hand_rule`).
     """
 
     name = "expert"
@@ -141,6 +182,7 @@ class ExpertDecomposer(Decomposer):
         "stopping_delta": number(0.0), "velocity_source": one_of("auto", "joint", "ee"),
         "ee_stopping_delta": number(0.0, allow_none=True), "stop_test": one_of(*STOP_TESTS),
         "stopping_fraction": number(0.0, 1.0), "smooth_s": number(0.0), "min_stop_s": number(0.0),
+        "rule": one_of(*RULES), "hand_delta": number(0.0, exclusive_min=True),
     }
 
     def __init__(
@@ -152,10 +194,14 @@ class ExpertDecomposer(Decomposer):
         stopping_fraction: float = 0.1,
         smooth_s: float = 0.1,
         min_stop_s: float = 0.2,
+        rule: str = "auto",
+        hand_delta: float = 0.1,
     ):
         opts = self.check_options(
             velocity_source=velocity_source, stopping_delta=stopping_delta, ee_stopping_delta=ee_stopping_delta,
-            stop_test=stop_test, stopping_fraction=stopping_fraction, smooth_s=smooth_s, min_stop_s=min_stop_s)
+            stop_test=stop_test, stopping_fraction=stopping_fraction, smooth_s=smooth_s, min_stop_s=min_stop_s,
+            rule=rule, hand_delta=hand_delta)
+        self.rule, self.hand_delta = opts["rule"], opts["hand_delta"]
         self.velocity_source, self.stop_test = opts["velocity_source"], opts["stop_test"]
         self.stopping_delta, self.ee_stopping_delta = opts["stopping_delta"], opts["ee_stopping_delta"]
         self.stopping_fraction, self.smooth_s, self.min_stop_s = (
@@ -178,7 +224,12 @@ class ExpertDecomposer(Decomposer):
         return ee_velocities(episode.ee_poses), float(delta), "ee"
 
     def decompose(self, episode: Episode) -> Decomposition:
-        """Segments ending at the expert keyframes (the last frame always ends one)."""
+        """Segments ending at the expert keyframes (the last frame always ends one), or the hand rule's."""
+        if self.rule == "hands" or (self.rule == "auto" and uses_hand_rule(episode)):
+            segments, meta = hand_rule_segments(episode, self.hand_delta, self.stopping_fraction, self.smooth_s,
+                                                self.min_stop_s)
+            return Decomposition(segments=segments,
+                                 meta={"rule": "hands", "keypoints": [e - 1 for _, e in segments], **meta})
         if episode.gripper_open is None:
             raise ValueError(f"episode {episode.name!r} has no gripper_open signal for the expert rule "
                              "(LeRobot: name the gripper dims with --reader-option gripper_key=... "
