@@ -113,13 +113,15 @@ def still_runs(speed: np.ndarray, threshold: float, min_frames: int) -> list[tup
     return [(a, b) for a, b in runs if b - a >= min_frames]
 
 
-def arm_moving(speed: np.ndarray, fraction: float) -> np.ndarray:
-    """Frames where an arm moves: its speed above ``fraction`` of the episode's peak (95th percentile)."""
-    s = np.asarray(speed, dtype=np.float64)
-    if s.size == 0:
-        return np.zeros(0, dtype=bool)
-    peak = float(np.percentile(s, 95))
-    return s > fraction * peak if peak > 0 else np.zeros(s.shape, dtype=bool)
+def arm_moving(speeds: dict[str, np.ndarray], fraction: float) -> dict[str, np.ndarray]:
+    """Frames where each arm moves: its speed above ``fraction`` of the episode's peak, the 95th
+    percentile of the fastest arm's speed (so an idle arm's noise is not motion)."""
+    if not speeds:
+        return {}
+    fastest = np.max(np.stack([np.asarray(s, dtype=np.float64) for s in speeds.values()]), axis=0)
+    peak = float(np.percentile(fastest, 95)) if fastest.size else 0.0
+    return {k: (np.asarray(s) > fraction * peak) if peak > 0 else np.zeros(np.shape(s), dtype=bool)
+            for k, s in speeds.items()}
 
 
 def episode_moves(levels: np.ndarray, delta: float, open_above: bool = True) -> list[HandMove]:

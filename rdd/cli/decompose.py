@@ -108,9 +108,18 @@ def fill_instructions(record: dict[str, Any], episode: Episode, labeler=None, fa
 
 
 def make_labeler(args: argparse.Namespace):
-    """``--labeler retrieval``: the nearest entry of ``--label-db`` (default ``--db``) names a segment."""
-    if args.labeler is None:
+    """``--labeler retrieval``: the nearest entry of ``--label-db`` (default ``--db``) names a segment;
+    ``--labeler signals`` (the default with ``--write-lerobot`` and no ``--fallback-instruction``): what
+    the robot's hand and joint signals show."""
+    name = args.labeler
+    if name is None and args.write_lerobot is not None and args.fallback_instruction is None:
+        name = "signals"
+    if name is None:
         return None
+    if name == "signals":
+        from rdd.signals_labeler import SignalsLabeler
+
+        return SignalsLabeler()
     from rdd.database import SubtaskDatabase
     from rdd.retrieval_labeler import RetrievalLabeler
 
@@ -139,7 +148,8 @@ def lerobot_subtasks(episodes: Sequence[Episode], records: Sequence[dict[str, An
             raise CLIError(
                 f"--write-lerobot: decomposer {decomposer} gives no instruction for segments {empty} of episode "
                 f"{ep.name!r} (rdd takes them from its database's entries: build it from annotated episodes); "
-                "pass --labeler retrieval --label-db DB (a database with instructions) or "
+                "pass --labeler signals (what the robot's hand and joint signals show), "
+                "--labeler retrieval --label-db DB (a database with instructions) or "
                 "--fallback-instruction TEMPLATE, e.g. '{task} (step {index} of {count})'"
             )
         out[int(ep.meta["episode_index"])] = ([tuple(s) for s in rec["segments"]], list(instr))
@@ -196,10 +206,10 @@ def cmd_decompose(args: argparse.Namespace) -> int:
     episodes = load_data(args)
     decomposer, config = make_decomposer(args, episodes[0])
     labeler = make_labeler(args)
-    config.update(format=args.format, data=str(args.data), version=OUTPUT_VERSION,
-                  fallback_instruction=args.fallback_instruction, labeler=args.labeler,
-                  label_db=None if labeler is None else str(args.label_db or args.db))
     label_db = getattr(labeler, "database", None)
+    config.update(format=args.format, data=str(args.data), version=OUTPUT_VERSION,
+                  fallback_instruction=args.fallback_instruction, labeler=getattr(labeler, "name", None),
+                  label_db=None if label_db is None else str(args.label_db or args.db))
     staging = Staging(parts_folder(out if out is not None else lerobot_out),
                       settings_hash(args, config=config, label_db=label_db and label_db.fingerprint()))
     items = [(staging.path(i, ep), ep, None) for i, ep in enumerate(episodes)]
@@ -251,9 +261,10 @@ def add_parser(sub) -> None:
     p.add_argument("--lerobot-version", choices=("3.0", "2.1"), default="3.0",
                    help="layout of the --write-lerobot copy (default 3.0, also from a v2.1 source, as current "
                         "LeRobot reads it; 2.1 keeps a v2.1 source's layout)")
-    p.add_argument("--labeler", choices=("retrieval",),
+    p.add_argument("--labeler", choices=("retrieval", "signals"),
                    help="name segments the decomposer gives no instruction: retrieval = the instruction of "
-                        "the nearest entry of --label-db")
+                        "the nearest entry of --label-db; signals = what the robot's hand and joint signals "
+                        "show (default with --write-lerobot unless --fallback-instruction is given)")
     p.add_argument("--label-db", metavar="DIR", help="database for --labeler retrieval (default --db)")
     p.add_argument("--fallback-instruction", metavar="TEMPLATE",
                    help="instruction for segments the decomposer gives none, with fields "

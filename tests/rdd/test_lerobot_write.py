@@ -144,10 +144,14 @@ def test_round_trip_through_the_cli(lerobot_factory, tmp_path, capsys, version):
     src = lerobot_factory(version)
     cache = ["--cache-dir", tmp_path / "cache"]
     out = tmp_path / "annotated"
-    # No instruction from the uniform decomposer and no fallback: an error, nothing written.
+    # No instruction from the uniform decomposer and no fallback: the signals labeler names what the
+    # robot does. Episode 0 (30 frames): the arm moves but for frames 11-13, the gripper closes at 15.
     assert run("decompose", "--format", "lerobot", "--data", src, "--decomposer", "uniform",
-               "--option", "n_segments=3", "--write-lerobot", out) == 2
-    assert "--fallback-instruction" in capsys.readouterr().err and not out.exists()
+               "--option", "n_segments=3", "--write-lerobot", tmp_path / "signals", "--out", tmp_path / "s.json") == 0
+    recs = json.loads((tmp_path / "s.json").read_text())["episodes"]
+    assert all(set(r["instruction_sources"]) == {"labeler"} for r in recs)
+    assert recs[0]["instructions"] == ["arm moves", "arm moves and gripper closes", "arm moves"]
+    assert load_episodes(tmp_path / "signals")[0].instructions == recs[0]["instructions"]
     assert run("decompose", "--format", "lerobot", "--data", src, "--decomposer", "uniform",
                "--option", "n_segments=3", "--fallback-instruction", "{task}, step {index} of {count}",
                "--out", tmp_path / "u.json", "--write-lerobot", out,
