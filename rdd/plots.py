@@ -10,6 +10,7 @@ import numpy as np
 
 from rdd.atomic import atomic_file
 from rdd.data.episode import Episode
+from rdd.plot_signals import draw_signals, has_signals
 from rdd.segments import Segment, validate_segments
 
 FIGURE_FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg"}
@@ -89,9 +90,15 @@ def plot_timelines(
     if not panels:
         raise ValueError("nothing to plot: no episodes given")
     n_rows = [len(rows) + (gt is not None) for _, rows, gt in panels]
-    fig, axes = plt.subplots(len(panels), 1, figsize=(14, sum(1.25 * r + 0.6 for r in n_rows)),
-                             squeeze=False, gridspec_kw={"height_ratios": n_rows})
-    for ax, (episode, rows, gt), count in zip(axes[:, 0], panels, n_rows, strict=True):
+    # Episodes with hand/arm signals (LeRobot) get an axis under their timeline: the signals and the cuts.
+    signals = [has_signals(ep) for ep, _, _ in panels]
+    heights = [h for r, sig in zip(n_rows, signals, strict=True) for h in ([r, 1.6] if sig else [r])]
+    fig, grid = plt.subplots(len(heights), 1, figsize=(14, sum(1.25 * h + 0.6 for h in heights)),
+                             squeeze=False, gridspec_kw={"height_ratios": heights})
+    axes_iter = iter(grid[:, 0])
+    for (episode, rows, gt), count, sig in zip(panels, n_rows, signals, strict=True):
+        ax = next(axes_iter)
+        sig_ax = next(axes_iter) if sig else None
         t = episode.num_frames
         named = ([(gt_label, gt)] if gt is not None else []) + list(rows.items())
         checked = []
@@ -120,6 +127,10 @@ def plot_timelines(
         goal = f": {episode.goal}" if episode.goal else ""
         ax.set_title(drawable(f"{episode.name} ({t} frames){goal}"), fontsize=10, loc="left")
         ax.grid(axis="x", alpha=0.3)
+        if sig_ax is not None:
+            # The first method's cuts (the ground truth's when there is no method row).
+            label, segs = next(((lab, sg) for lab, sg in checked if lab in rows), checked[0])
+            draw_signals(sig_ax, episode, [s for s, _ in segs[1:]], drawable(label))
     fig.tight_layout()
     try:
         with atomic_file(out, "wb", overwrite=overwrite) as fh:

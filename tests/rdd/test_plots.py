@@ -59,3 +59,16 @@ def test_names_that_are_not_utf8_are_drawn_escaped(toy_native, tmp_path, suffix)
     if suffix == ".svg":
         assert "ep\\xff" in out.read_text()
     assert drawable(bad) == "ep\\xff" and drawable("a\ud800b") == "a\\ud800b" and drawable("é") == "é"
+
+
+def test_lerobot_signals_drawn_under_the_timeline(tmp_path):
+    """An episode with hand levels and sided arms gets a signals axis: a taller figure, same timeline."""
+    frames = np.zeros((40, 8, 8, 3), np.uint8)
+    meta = {"fps": 10, "hand_levels": np.stack([np.full(40, 0.7), np.repeat([0.8, 0.3], 20)], axis=1),
+            "gripper": {"sides": ["left", "right"]}, "arm_sides": {"left": [0], "right": [1]}}
+    plain = Episode(name="e", views={"front": frames}, joint_velocities=np.ones((40, 2)))
+    with_signals = Episode(name="e", views={"front": frames}, joint_velocities=np.ones((40, 2)), meta=meta)
+    rows = {"expert": [(0, 20), (20, 40)]}
+    a = plot_timelines([(plain, rows, None)], tmp_path / "a.png")
+    b = plot_timelines([(with_signals, rows, None)], tmp_path / "b.png")
+    assert Image.open(b).size[1] > Image.open(a).size[1]
