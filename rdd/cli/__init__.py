@@ -1,6 +1,6 @@
 """``python -m rdd``: build a sub-task database, decompose demonstrations, evaluate, plot.
 
-Subcommands: ``build-db``, ``calibrate``, ``decompose``, ``evaluate``, ``plot``, ``demo``. Every expected failure
+Subcommands: ``build-db``, ``calibrate``, ``decompose``, ``evaluate``, ``plot``, ``demo``, ``serve``. Every expected failure
 is reported as one line naming the file or option at fault, with exit status 2 (``-v`` also prints
 the traceback); Ctrl-C stops with status 130 and leaves no partial output (``decompose`` and
 ``build-db`` keep the episodes they finished beside it, so the same command resumes: ``rdd.cli.staging``).
@@ -17,11 +17,11 @@ import sys
 import traceback
 from collections.abc import Sequence
 
-from rdd.cli import build_db, calibrate, decompose, demo, evaluate, plot
+from rdd.cli import build_db, calibrate, decompose, demo, evaluate, plot, serve
 from rdd.cli.common import CLIError
 
 # One module per subcommand, each adding its own parser; the order is the order of ``--help``.
-SUBCOMMANDS = (build_db, calibrate, decompose, evaluate, plot, demo)
+SUBCOMMANDS = (build_db, calibrate, decompose, evaluate, plot, demo, serve)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,78 @@
+"""The HTTP face of :class:`~rdd.serve.service.DecomposeService`: a FastAPI app with the official
+server's routes (``POST /decompose``, ``GET /config``) and ``GET /health``.
+
+Errors answer ``{"error": "<field>: <what is wrong>"}``: 422 for a malformed body or a bad value,
+400 for an unknown method (the official server's status), 403 for a path outside ``--root``, 404
+for a file that does not exist. The handlers are plain functions, which FastAPI runs in its thread
+pool; the service lets one request compute at a time per worker.
+"""
+
+# No `from __future__ import annotations`: FastAPI reads the handlers' annotations at run time,
+# and the request model is local to create_app.
+import os
+from typing import Any
+
+from rdd.serve.service import DecomposeService, RequestError
+
+
+def _fastapi():
+    """FastAPI and pydantic, or the install line to run."""
+    try:
+        import fastapi
+        import pydantic
+    except ImportError as exc:
+        raise ImportError(f"serving needs FastAPI and uvicorn: pip install 'rdd[serve]' ({exc})") from exc
+    return fastapi, pydantic
+
+
+def _field(loc: tuple) -> str:
+    """``("body", "paths", 0, 1)`` as ``paths[0][1]``; the body itself (``("body", 7)``: not JSON) as ``body``."""
+    parts = list(loc[1:]) if loc and loc[0] == "body" else list(loc)
+    if not parts or not isinstance(parts[0], str):
+        return "body"
+    out = parts[0]
+    for p in parts[1:]:
+        out += f"[{p}]" if isinstance(p, int) else f".{p}"
+    return out
+
+
+def create_app(service: DecomposeService):
+    """A FastAPI app answering with ``service`` (loaded before, once per worker)."""
+    fastapi, pydantic = _fastapi()
+    from fastapi.exceptions import RequestValidationError
+    from fastapi.responses import JSONResponse
+
+    class DecomposeRequest(pydantic.BaseModel):
+        """The official request body; ``preprocessor`` is optional here (the official default is r3m)."""
+
+        model_config = pydantic.ConfigDict(strict=True)
+        paths: list[list[str]]
+        method: str
+        preprocessor: str | None = None
+
+    app = fastapi.FastAPI(title="rdd decomposition server")
+    app.state.service = service
+
+    @app.exception_handler(RequestValidationError)
+    def _invalid(_request, exc: RequestValidationError) -> JSONResponse:
+        first = exc.errors()[0]
+        msg = f"{_field(tuple(first.get('loc', ())))}: {first.get('msg', 'invalid')}"
+        return JSONResponse({"error": msg}, status_code=422)
+
+    @app.exception_handler(RequestError)
+    def _bad(_request, exc: RequestError) -> JSONResponse:
+        return JSONResponse({"error": str(exc)}, status_code=exc.status)
+
+    @app.post("/decompose")
+    def decompose(request: DecomposeRequest) -> dict[str, Any]:
+        return service.decompose(request.paths, request.method, request.preprocessor)
+
+    @app.get("/config")
+    def config() -> dict[str, Any]:
+        return {"config": service.config()}
+
+    @app.get("/health")
+    def health() -> dict[str, Any]:
+        return {"status": "ok", "pid": os.getpid(), "methods": list(service.decomposers)}
+
+    return app
