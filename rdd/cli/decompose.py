@@ -32,6 +32,7 @@ from rdd.cli.staging import (
     settings_hash,
 )
 from rdd.data.episode import Episode
+from rdd.errors import InputError
 
 OUTPUT_VERSION = 1
 FALLBACK_FIELDS = ("task", "episode", "index", "count", "start", "end")
@@ -110,16 +111,21 @@ def fill_instructions(record: dict[str, Any], episode: Episode, labeler=None, fa
 def make_labeler(args: argparse.Namespace):
     """``--labeler retrieval``: the nearest entry of ``--label-db`` (default ``--db``) names a segment;
     ``--labeler signals`` (the default with ``--write-lerobot`` and no ``--fallback-instruction``): what
-    the robot's hand and joint signals show."""
+    the robot's hand and joint signals show; ``--labeler vlm``: a vision-language model's instruction for
+    a few frames of the segment. ``--labeler-option KEY=VALUE`` pairs are the signals and vlm labelers'
+    keyword arguments."""
     name = args.labeler
     if name is None and args.write_lerobot is not None and args.fallback_instruction is None:
         name = "signals"
+    options = parse_options(getattr(args, "labeler_option", None), "--labeler-option")
     if name is None:
+        if options:
+            raise CLIError("--labeler-option needs --labeler signals or --labeler vlm")
         return None
-    if name == "signals":
-        from rdd.signals_labeler import SignalsLabeler
-
-        return SignalsLabeler()
+    if name in ("signals", "vlm"):
+        return _option_labeler(name, options)
+    if options:
+        raise CLIError("--labeler retrieval takes no --labeler-option (its index is the database's)")
     from rdd.database import SubtaskDatabase
     from rdd.retrieval_labeler import RetrievalLabeler
 
@@ -135,6 +141,27 @@ def make_labeler(args: argparse.Namespace):
         return RetrievalLabeler(db, encoder, cache=make_cache(args))
     except ValueError as exc:
         raise CLIError(f"--label-db {path}: {exc}") from exc
+
+
+def _option_labeler(name: str, options: dict[str, Any]):
+    """The signals or vlm labeler built from ``--labeler-option`` pairs; a bad one is a one-line error."""
+    from rdd.registry import check_option_names
+
+    if name == "signals":
+        from rdd.signals_labeler import SignalsLabeler as cls
+    else:
+        from rdd.vlm_labeler import VLMLabeler as cls
+    try:
+        check_option_names("labeler", cls, options)
+        return cls(**options)
+    except InputError as exc:
+        shown = f"--labeler-option {exc.option}={json.dumps(options[exc.option])}" if exc.option in options \
+            else f"--labeler {name}"
+        raise CLIError(f"{shown}: {exc}") from exc
+    except ValueError as exc:
+        hint = " (e.g. --labeler-option base_url=http://127.0.0.1:8000/v1 --labeler-option model=NAME)" \
+            if name == "vlm" else ""
+        raise CLIError(f"--labeler {name}: {exc}{hint}") from exc
 
 
 def lerobot_subtasks(episodes: Sequence[Episode], records: Sequence[dict[str, Any]], decomposer: str,
@@ -261,10 +288,14 @@ def add_parser(sub) -> None:
     p.add_argument("--lerobot-version", choices=("3.0", "2.1"), default="3.0",
                    help="layout of the --write-lerobot copy (default 3.0, also from a v2.1 source, as current "
                         "LeRobot reads it; 2.1 keeps a v2.1 source's layout)")
-    p.add_argument("--labeler", choices=("retrieval", "signals"),
+    p.add_argument("--labeler", choices=("retrieval", "signals", "vlm"),
                    help="name segments the decomposer gives no instruction: retrieval = the instruction of "
                         "the nearest entry of --label-db; signals = what the robot's hand and joint signals "
-                        "show (default with --write-lerobot unless --fallback-instruction is given)")
+                        "show (default with --write-lerobot unless --fallback-instruction is given); vlm = a "
+                        "vision-language model's instruction for a few frames of each segment")
+    p.add_argument("--labeler-option", action="append", metavar="KEY=VALUE",
+                   help="labeler keyword (signals, vlm), e.g. base_url=http://127.0.0.1:8000/v1, model=NAME, "
+                        "view=top, frames=4 (vlm; conf/labeler/vlm.yaml lists them); unknown keys are errors")
     p.add_argument("--label-db", metavar="DIR", help="database for --labeler retrieval (default --db)")
     p.add_argument("--fallback-instruction", metavar="TEMPLATE",
                    help="instruction for segments the decomposer gives none, with fields "

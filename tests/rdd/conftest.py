@@ -1,8 +1,12 @@
-"""Small LeRobot datasets (v2.1 and v3.0) written here with pyarrow and PyAV, as LeRobot lays them out."""
+"""Small LeRobot datasets (v2.1 and v3.0) written here with pyarrow and PyAV, as LeRobot lays them out;
+a stand-in chat-completions server for the VLM tests."""
 
 from __future__ import annotations
 
 import json
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import numpy as np
@@ -179,3 +183,50 @@ def cli_fails(capsys):
         return err
 
     return fails
+
+
+class FakeEndpoint:
+    """A chat-completions server whose answers, failures and delays the test scripts."""
+
+    def __init__(self):
+        self.requests: list[dict] = []
+        # (status, content, delay); content as bytes is sent as the whole body (a malformed payload)
+        self.script: list[tuple[int, str | bytes, float]] = []
+        server = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self):  # noqa: N802 - http.server API
+                body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
+                server.requests.append({"path": self.path, "auth": self.headers.get("Authorization"),
+                                        "body": body})
+                status, content, delay = server.script.pop(0) if server.script else (200, "[]", 0)
+                time.sleep(delay)
+                payload = content if isinstance(content, bytes) else json.dumps(
+                    {"choices": [{"message": {"role": "assistant", "content": content}}]}).encode()
+                try:
+                    self.send_response(status)
+                    self.send_header("Content-Type", "application/json")
+                    self.end_headers()
+                    self.wfile.write(payload)
+                except (BrokenPipeError, ConnectionResetError):
+                    pass
+
+            def log_message(self, *args):
+                pass
+
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
+        self.thread.start()
+        self.base_url = f"http://127.0.0.1:{self.httpd.server_address[1]}/v1"
+
+    def close(self):
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+@pytest.fixture
+def endpoint():
+    """A stand-in chat-completions server on 127.0.0.1 (the VLM decomposer's and labeler's tests)."""
+    ep = FakeEndpoint()
+    yield ep
+    ep.close()

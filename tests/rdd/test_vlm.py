@@ -1,71 +1,18 @@
-"""VLM baseline against a real HTTP server on 127.0.0.1 that answers like a chat endpoint."""
+"""VLM baseline against a real HTTP server on 127.0.0.1 that answers like a chat endpoint (fixture
+``endpoint``, tests/rdd/conftest.py)."""
 
 from __future__ import annotations
 
-import json
 import logging
-import threading
-import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import numpy as np
 import pytest
 
 from rdd.data.episode import Episode
-from rdd.decomposers.vlm import (
-    OpenAIChatBackend,
-    TransformersVLMBackend,
-    VLMDecomposer,
-    VLMError,
-    parse_keyframe_indices,
-    subsample_indices,
-)
+from rdd.decomposers.vlm import VLMDecomposer, parse_keyframe_indices
+from rdd.vlm_backends import OpenAIChatBackend, TransformersVLMBackend, VLMError, subsample_indices
 
 SECRET = "sk-test-secret-value-123"
-
-
-class FakeEndpoint:
-    """A chat-completions server whose answers, failures and delays the test scripts."""
-
-    def __init__(self):
-        self.requests: list[dict] = []
-        self.script: list[tuple[int, str, float]] = []  # (status, content, delay)
-        server = self
-
-        class Handler(BaseHTTPRequestHandler):
-            def do_POST(self):  # noqa: N802 - http.server API
-                body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-                server.requests.append({"path": self.path, "auth": self.headers.get("Authorization"),
-                                        "body": body})
-                status, content, delay = server.script.pop(0) if server.script else (200, "[]", 0)
-                time.sleep(delay)
-                payload = json.dumps({"choices": [{"message": {"role": "assistant", "content": content}}]})
-                try:
-                    self.send_response(status)
-                    self.send_header("Content-Type", "application/json")
-                    self.end_headers()
-                    self.wfile.write(payload.encode())
-                except (BrokenPipeError, ConnectionResetError):
-                    pass
-
-            def log_message(self, *args):
-                pass
-
-        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
-        self.thread.start()
-        self.base_url = f"http://127.0.0.1:{self.httpd.server_address[1]}/v1"
-
-    def close(self):
-        self.httpd.shutdown()
-        self.httpd.server_close()
-
-
-@pytest.fixture
-def endpoint():
-    ep = FakeEndpoint()
-    yield ep
-    ep.close()
 
 
 def episode(t=40):
