@@ -16,6 +16,8 @@ import os
 import sys
 from typing import Any
 
+import numpy as np
+
 from rdd.cli.common import CLIError, parse_options
 from rdd.cli.components import SET_BY_CLI, make_decomposer
 from rdd.cli.staging import _set_torch_threads, cores
@@ -40,6 +42,9 @@ def make_service(args: argparse.Namespace) -> DecomposeService:
                         views=rdd_decomposer.views, **uvd_options)
     except (TypeError, ValueError) as exc:
         raise CLIError(f"--uvd-option: {exc}") from exc
+    # The encoder's first call imports torch and readies its runtime (1-2 s): done here, at load,
+    # so no request pays for it.
+    rdd_decomposer.encoder.encode(np.zeros((1, 64, 64, 3), dtype=np.uint8))
     config.update(preprocessor=config.get("encoder"), uvd_options=uvd_options, workers=args.workers)
     config.pop("decomposer", None)
     try:
@@ -61,8 +66,9 @@ def worker_app():
 
     args = argparse.Namespace(**json.loads(os.environ[ARGS_ENV]))
     show_progress(False)
-    _set_torch_threads(max(1, cores() // args.workers))
-    return create_app(make_service(args))
+    service = make_service(args)
+    _set_torch_threads(max(1, cores() // args.workers))  # after the load: torch is imported by then
+    return create_app(service)
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
