@@ -179,3 +179,9 @@ def test_cli_errors_are_one_line(lerobot_factory, tmp_path, capsys):
               "--labeler-option", "frames=0", "--write-lerobot", tmp_path / "o", expect=("--labeler-option frames=0",))
     cli_fails(capsys, "decompose", "--format", "lerobot", "--data", src, "--decomposer", "uniform", "--labeler", "retrieval",
               "--labeler-option", "frames=2", "--out", tmp_path / "o.json", expect=("--labeler retrieval",))
+    cli_fails(capsys, "decompose", "--format", "lerobot", "--data", src, "--decomposer", "uniform", "--labeler",
+              "signals", "--labeler-option", "hand_dleta=0.2", "--out", tmp_path / "o.json",
+              expect=("--labeler signals", "hand_dleta", "hand_delta"))
+    cli_fails(capsys, "decompose", "--format", "lerobot", "--data", src, "--decomposer", "uniform", "--labeler",
+              "signals", "--labeler-option", "hand_delta=0", "--out", tmp_path / "o.json",
+              expect=("--labeler-option hand_delta=0", "must be > 0"))
