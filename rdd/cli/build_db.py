@@ -73,7 +73,7 @@ def cmd_build_db(args: argparse.Namespace) -> int:
     from rdd.database import SubtaskDatabase
     from rdd.database_build import merge_entries
 
-    workers = check_workers(args.workers)
+    workers = check_workers(args.workers, args)
     out = check_output(args.out, "--out", args.force, kind="dir", inputs=[("--data", args.data), cache_input(args)])
     episodes = load_data(args)
     views = resolve_views(args.views, episodes[0])
@@ -127,7 +127,8 @@ def cmd_build_db(args: argparse.Namespace) -> int:
         items.append((staging.path(i, ep, payload), ep, payload))
     run_staged(items, _embed_one, f"embedding ({encoder.name})", workers=workers,
                state=(encoder, views, make_cache(args), not args.raw_views),
-               factory=_embedder, factory_args=(args, views))
+               factory=_embedder, factory_args=(args, views),
+               executor=args.executor, address=args.ray_address)
     db = SubtaskDatabase.from_entries(merge_entries([_staged_entries(p, ep) for p, ep, _ in items]),
                                       encoder, views, normalize_views=not args.raw_views)
     db.meta["source"] = {"format": args.format, "data": str(args.data),

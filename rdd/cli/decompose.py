@@ -217,7 +217,7 @@ def cmd_decompose(args: argparse.Namespace) -> int:
         raise CLIError("decompose needs --out FILE.json, --write-lerobot DIR, or both")
     if args.write_lerobot is not None and args.format != "lerobot":
         raise CLIError(f"--write-lerobot needs --format lerobot, not {args.format}")
-    workers = check_workers(args.workers)
+    workers = check_workers(args.workers, args)
     inputs = [("--data", args.data), ("--db", args.db), ("--label-db", args.label_db), cache_input(args)]
     out = check_output(args.out, "--out", args.force, inputs=inputs)
     lerobot_out = check_output(args.write_lerobot, "--write-lerobot", False, kind="dir",
@@ -241,7 +241,8 @@ def cmd_decompose(args: argparse.Namespace) -> int:
                       settings_hash(args, config=config, label_db=label_db and label_db.fingerprint()))
     items = [(staging.path(i, ep), ep, None) for i, ep in enumerate(episodes)]
     run_staged(items, _decompose_one, f"decompose ({args.decomposer})", workers=workers,
-               state=(decomposer, labeler, args), factory=_components, factory_args=(args, episodes[0]))
+               state=(decomposer, labeler, args), factory=_components, factory_args=(args, episodes[0]),
+               executor=args.executor, address=args.ray_address)
     records = [_staged_record(path, ep) for path, ep, _ in items]
     if lerobot_out is not None:
         from rdd.data.lerobot_write import write_subtasks

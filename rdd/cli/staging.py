@@ -10,7 +10,8 @@ the output is written. Episodes are read, worked on and released one at a time.
 
 ``--workers N`` runs the episodes in N processes on this machine (spawned: each builds its own
 components from the command's arguments, with cores // N torch threads), each taking the next
-episode as it finishes one; one bar counts the whole job.
+episode as it finishes one; one bar counts the whole job. ``--executor ray`` runs the same step
+function as tasks on a Ray cluster instead (``rdd.cli.ray_executor``).
 """
 
 from __future__ import annotations
@@ -34,7 +35,8 @@ from rdd.progress import EpisodeBar, show_progress
 
 # Arguments that do not change any episode's result: where outputs go, which episodes are chosen
 # (a part is the result of one episode), the embedding cache (a cache, not an input), parallelism.
-NOT_SETTINGS = frozenset({"out", "write_lerobot", "lerobot_version", "force", "workers", "include", "exclude", "cache_dir",
+NOT_SETTINGS = frozenset({"out", "write_lerobot", "lerobot_version", "force", "workers", "executor", "ray_address",
+                         "include", "exclude", "cache_dir",
                           "no_cache", "verbose", "func", "command"})
 
 
@@ -51,15 +53,30 @@ def settings_hash(args: argparse.Namespace, **extra: Any) -> str:
 
 
 def add_workers_arg(p: argparse.ArgumentParser) -> None:
-    """``--workers N``."""
+    """``--workers N``, ``--executor``, ``--ray-address``."""
     p.add_argument("--workers", type=int, default=1, metavar="N",
-                   help="processes working on episodes at once (default 1; each gets cores/N torch threads)")
+                   help="processes working on episodes at once (default 1; each gets cores/N torch threads; "
+                        "with --executor ray, Ray actors of one CPU each)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="where episodes are worked on: local = processes on this machine; ray = tasks on a Ray "
+                        "cluster, the components sent once, the same results (needs: make install-cluster; "
+                        "--data readable at the same path on every node)")
+    p.add_argument("--ray-address", metavar="ADDRESS",
+                   help="--executor ray: the cluster to join (auto = the one this node belongs to, "
+                        "ray://HEAD:10001); default a local cluster of --workers CPUs started for the job")
 
 
-def check_workers(n: int) -> int:
-    """``--workers`` as given, refused below 1."""
+def check_workers(n: int, args: argparse.Namespace | None = None) -> int:
+    """``--workers`` as given, refused below 1; with ``args``, ``--ray-address`` only with ``--executor ray``
+    and Ray installed for it."""
     if n < 1:
         raise CLIError(f"--workers {n}: must be >= 1")
+    if args is not None and getattr(args, "ray_address", None) is not None and args.executor != "ray":
+        raise CLIError(f"--ray-address {args.ray_address}: needs --executor ray")
+    if args is not None and getattr(args, "executor", "local") == "ray":
+        from rdd.cli.ray_executor import import_ray
+
+        import_ray()  # before any work: the missing extra is a one-line error naming the install line
     return n
 
 
@@ -123,18 +140,25 @@ def _worker_step(step: Step, path: Path, episode: Episode, payload: Any) -> floa
 
 
 def run_staged(items: Sequence[tuple[Path, Episode, Any]], step: Step, desc: str, *, workers: int = 1,
-               state: Any = None, factory: Callable[..., Any] | None = None, factory_args: tuple = ()) -> None:
+               state: Any = None, factory: Callable[..., Any] | None = None, factory_args: tuple = (),
+               executor: str = "local", address: str | None = None) -> None:
     """Run ``step`` on every ``(part path, episode, payload)`` whose part does not exist yet.
 
     One process (``workers=1``) uses ``state``; more spawn ``workers`` processes whose state each
     ``factory(*factory_args)`` makes (module-level functions and picklable arguments). Each episode
-    is released once done. An error stops the job after the episodes in progress finish (their
+    is released once done. ``executor="ray"`` runs the episodes as tasks on ``workers`` Ray actors
+    that share ``state``, on the cluster at ``address`` (default a local one). An error stops the job after the episodes in progress finish (their
     parts are kept, as every finished one is) and is raised here.
     """
     todo = [item for item in items if not item[0].exists()]
     done_frames = sum(int(ep.num_frames) for path, ep, _ in items if path.exists())
     total = sum(int(ep.num_frames) for _, ep, _ in items)
     with EpisodeBar(desc, len(items), total, done=len(items) - len(todo), done_frames=done_frames) as bar:
+        if executor == "ray" and todo:
+            from rdd.cli.ray_executor import run_on_ray
+
+            run_on_ray(todo, step, bar, workers=workers, state=state, address=address)
+            return
         if workers == 1 or len(todo) <= 1:
             for path, ep, payload in todo:
                 start = time.monotonic()
