@@ -24,7 +24,7 @@ def test_unannotated_entries_keep_the_task_and_no_instruction(lerobot_factory, t
     db = SubtaskDatabase.load(tmp_path / "db")
     assert db.meta["source"]["segmenter"] == "expert"
     assert db.labels == [""] * len(db) and db.tasks == [TASK] * len(db)
-    # rdd over that database gives no sub-task: writing needs a labeler or a fallback, and says so
+    # rdd over that database gives no sub-task: writing takes a labeler (signals by default) or a fallback
     rdd = ["decompose", "--format", "lerobot", "--data", src, "--decomposer", "rdd", "--db", tmp_path / "db", *enc]
     def fails(*extra, expect: tuple[str, ...]) -> None:
         capsys.readouterr()
@@ -33,7 +33,11 @@ def test_unannotated_entries_keep_the_task_and_no_instruction(lerobot_factory, t
         assert len(errors) == 1 and all(w in errors[0] for w in expect), errors
         assert not (tmp_path / "none").exists()
 
-    fails("--write-lerobot", tmp_path / "none", expect=("--write-lerobot", "--fallback-instruction", "--labeler"))
+    # with neither option, the signals labeler names what the gripper and arm do (its default)
+    assert main([str(a) for a in (*rdd, "--out", tmp_path / "s.json", "--write-lerobot", tmp_path / "sig")]) == 0
+    sig = json.loads((tmp_path / "s.json").read_text())["episodes"]
+    assert all(r["instruction_sources"] == ["labeler"] * len(r["segments"]) for r in sig)
+    assert all(i and i != TASK for r in sig for i in r["instructions"])
     fails("--labeler", "retrieval", "--write-lerobot", tmp_path / "none", expect=("--label-db", "instructions"))
     assert main([str(a) for a in (*rdd, "--fallback-instruction", "{task}: part {index}", "--out",
                                   tmp_path / "r.json", "--write-lerobot", tmp_path / "out")]) == 0
