@@ -57,3 +57,45 @@ def test_same_text_different_image_gives_a_different_next_instruction(tmp_path):
         said = planner.next_instruction(ep.frames("front", [0])[0], ep.goal, None)
         hits.append(said == ep.instructions[0])
     assert np.mean(hits) >= 0.9, hits
+
+
+@pytest.mark.slow
+def test_smollm2_planner_reads_the_image(tmp_path, monkeypatch):
+    """The pretrained planner (SmolLM2 inside LLaVA): same text, drawer drawn left or right -> the
+    side drawn, on held-out scenes, after a smoke-scale base and LoRA finetune on the first steps."""
+    import importlib.util
+
+    from planner import smollm2
+    from planner.train import finetune_lora
+
+    if importlib.util.find_spec(smollm2.PACKAGE) is None:
+        pytest.skip(f"SmolLM2 is not installed: {smollm2.INSTALL_LINE}")
+    monkeypatch.setenv("RDD_CACHE_DIR", str(tmp_path / "cache"))
+    cfg = PlannerConfig(kind="smollm2_llava", vision_tower="effnet_lite0_mid", image_size=224,
+                        patch_size=32, max_new_tokens=12,
+                        align=dict(lr=1e-3, epochs=2, batch_size=8),
+                        pretrain=dict(lr=5e-5, epochs=1, batch_size=8),
+                        finetune=dict(lr=1e-3, epochs=3, batch_size=8),
+                        lora=dict(r=8, alpha=16, dropout=0.0))
+    # the first step only: its text (goal, no previous instruction) never tells the side
+    first = [ex for ex in training_examples(make_episodes(["open_drawer"], range(40), image_size=224),
+                                            cfg.pretrain)
+             if ex.previous_instruction is None]
+    assert {ex.target for ex in first} == {f"move to the drawer handle on the {s}" for s in ("left", "right")}
+    base = pretrain_base(cfg, first, tmp_path / "base", progress=False)
+    adapter = finetune_lora(cfg, base, first, tmp_path / "lora", seed=0, progress=False)
+    planner = Planner(cfg, base, adapter)
+
+    held_out = range(1000, 1030)
+    goal = make_episode("open_drawer", 1000, image_size=224).goal
+    answers = {}
+    for side in ("left", "right"):
+        for seed in held_out:
+            ep = make_episode("open_drawer", seed, image_size=224)
+            if ep.instructions[0].endswith(f"on the {side}"):
+                answers[side] = planner.next_instruction(ep.frames("front", [0])[0], goal, None)
+                break
+    assert answers == {s: f"move to the drawer handle on the {s}" for s in ("left", "right")}, answers
+    hits = [planner.next_instruction(ep.frames("front", [0])[0], ep.goal, None) == ep.instructions[0]
+            for ep in (make_episode("open_drawer", s, image_size=224) for s in held_out)]
+    assert np.mean(hits) >= 0.9, hits
