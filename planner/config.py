@@ -61,6 +61,10 @@ class TrainSettings:
     seed: int = 0
     include_inner_frames: bool = False  # also train on frames inside segments
     inner_frame_stride: int = 1  # with include_inner_frames: every k-th frame of each segment
+    # also every k-th inner frame of the segments whose goal and previous instruction precede
+    # different next instructions in these demos (only the image tells them apart, e.g. a block
+    # "above the plate" or "above the stack"): more views of what decides them; 0 = off
+    ambiguous_frame_stride: int = 0
     # slot-renamed copies per example (planner.augment): teaches reading objects/colours/order
     # from the goal instead of recalling them from a few demos; 0 = off
     slot_swap_copies: int = 0
@@ -80,6 +84,8 @@ class TrainSettings:
             raise ValueError(f"planner inner_frame_stride must be >= 1, got {self.inner_frame_stride}")
         if self.caption_frame_stride < 0:
             raise ValueError(f"planner caption_frame_stride must be >= 0, got {self.caption_frame_stride}")
+        if self.ambiguous_frame_stride < 0:
+            raise ValueError(f"planner ambiguous_frame_stride must be >= 0, got {self.ambiguous_frame_stride}")
         if self.slot_swap_copies < 0:
             raise ValueError(f"planner slot_swap_copies must be >= 0, got {self.slot_swap_copies}")
         if self.slot_swap_pool not in SLOT_SWAP_POOLS:
@@ -88,7 +94,8 @@ class TrainSettings:
 
     def key_dict(self) -> dict[str, Any]:
         """The settings as a cache key; options added later are left out while they are off."""
-        d = _key_dict(self, {"slot_swap_copies": 0, "inner_frame_stride": 1, "caption_frame_stride": 0})
+        d = _key_dict(self, {"slot_swap_copies": 0, "inner_frame_stride": 1, "caption_frame_stride": 0,
+                                 "ambiguous_frame_stride": 0})
         if not self.slot_swap_copies:
             d.pop("slot_swap_pool")  # meaningless without copies
         return d

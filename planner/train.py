@@ -174,12 +174,37 @@ def training_examples(episodes: Iterable, settings: TrainSettings, view: str = "
     episodes = list(episodes)
     if segmentations is not None and len(segmentations) != len(episodes):
         raise ValueError(f"{len(segmentations)} segmentations for {len(episodes)} episodes")
+    labelled = [segmentations[i] if segmentations is not None else (None, None) for i in range(len(episodes))]
     out: list[PlannerExample] = []
-    for i, ep in enumerate(episodes):
-        segs, instr = segmentations[i] if segmentations is not None else (None, None)
+    for ep, (segs, instr) in zip(episodes, labelled, strict=True):
         out.extend(examples_from_episode(ep, segs, instr, view=view,
                                          include_inner_frames=settings.include_inner_frames,
                                          inner_frame_stride=settings.inner_frame_stride))
+    if settings.ambiguous_frame_stride and not settings.include_inner_frames:
+        out += ambiguous_inner_examples(episodes, labelled, out, settings.ambiguous_frame_stride, view)
+    return out
+
+
+def _context(ex: PlannerExample) -> tuple:
+    return ex.task, ex.goal, ex.previous_instruction
+
+
+def ambiguous_inner_examples(episodes: Sequence, labelled: Sequence[tuple], boundary: Sequence[PlannerExample],
+                             stride: int, view: str) -> list[PlannerExample]:
+    """Every ``stride``-th inner frame of the segments whose context (task, goal, previous
+    instruction) precedes more than one next instruction among the ``boundary`` examples."""
+    targets: dict[tuple, set[str]] = {}
+    for ex in boundary:
+        targets.setdefault(_context(ex), set()).add(ex.target)
+    ambiguous = {c for c, t in targets.items() if len(t) > 1}
+    if not ambiguous:
+        return []
+    starts = {(ex.episode, ex.frame) for ex in boundary}
+    out = []
+    for ep, (segs, instr) in zip(episodes, labelled, strict=True):
+        inner = examples_from_episode(ep, segs, instr, view=view, include_inner_frames=True,
+                                      inner_frame_stride=stride)
+        out += [ex for ex in inner if _context(ex) in ambiguous and (ex.episode, ex.frame) not in starts]
     return out
 
 

@@ -55,6 +55,28 @@ def test_inner_frame_stride_counts_from_each_segment_start():
         examples_from_episode(_episode(), include_inner_frames=True, inner_frame_stride=0)
 
 
+def test_ambiguous_frame_stride_adds_inner_frames_of_image_decided_segments_only():
+    from planner.config import TrainSettings
+    from planner.train import training_examples
+
+    frames = np.stack([np.full((8, 8, 3), t, dtype=np.uint8) for t in range(20)])
+    # "lift" precedes both "above the plate" and "above the stack": only the image decides
+    names = ["lift", "above the plate", "place", "lift", "above the stack", "place"]
+    ep = Episode(name="ep", views={"front": frames}, goal="stack two blocks",
+                 segments=[(0, 2), (2, 6), (6, 8), (8, 10), (10, 16), (16, 20)], instructions=names)
+    plain = training_examples([ep], TrainSettings())
+    assert [e.frame for e in plain] == [0, 2, 6, 8, 10, 16]
+    more = training_examples([ep], TrainSettings(ambiguous_frame_stride=2))
+    extra = more[len(plain):]
+    # inner frames of (2, 6) and (10, 16) only, every 2nd from each start, starts not repeated
+    assert [e.frame for e in extra] == [4, 12, 14]
+    assert [e.target for e in extra] == ["above the plate", "above the stack", "above the stack"]
+    assert all(e.previous_instruction == "lift" for e in extra)
+    assert [int(e.image[0, 0, 0]) for e in extra] == [4, 12, 14]
+    with pytest.raises(ValueError, match="ambiguous_frame_stride"):
+        TrainSettings(ambiguous_frame_stride=-1)
+
+
 def test_decomposer_segmentation_overrides_expert_and_is_validated():
     ex = examples_from_episode(_episode(), [(0, 5), (5, 10)], ["a", "b"])
     assert [(e.frame, e.previous_instruction, e.target) for e in ex] == [(0, None, "a"), (5, "a", "b")]
