@@ -11,6 +11,16 @@ from typing import Any
 from rdd.cli.common import CLIError, check_output, log, write_json_atomic
 from rdd.cli.options import force_arg
 
+# What each printed column is (rdd.metrics), for ``evaluate --help``.
+COLUMNS = """columns (one row per method and episode, then the method's MEAN over its episodes):
+  mIoU      the RDD paper's (official) mIoU: the mean over the PREDICTED segments of each one's best
+            IoU with any ground-truth segment (a missed ground-truth segment costs nothing)
+  sym-mIoU  symmetric mIoU: the mean of mIoU(pred, gt) and mIoU(gt, pred), which also penalises
+            missed ground-truth segments
+  bP bR bF1 boundary precision, recall and F1: cuts (segment starts after frame 0) matched one to
+            one, a predicted cut with a ground-truth cut at most --tolerance frames away
+  #seg      predicted segments"""
+
 
 def read_segments_file(path: str | Path) -> dict[str, dict[str, Any]]:
     """Episodes of a ``decompose`` output file by name."""
@@ -112,14 +122,19 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def add_parser(sub) -> None:
     """The ``evaluate`` subcommand and its options."""
-    p = sub.add_parser("evaluate", help="compare decompose outputs (one or more methods) with ground truth")
+    p = sub.add_parser("evaluate", help="compare decompose outputs (one or more methods) with ground truth",
+                       description="Score each --pred method against --gt, episode by episode and on average.",
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog=COLUMNS)
     p.add_argument("--pred", nargs="+", required=True, metavar="[LABEL=]FILE",
                    help="one decompose output per method, e.g. rdd=rdd.json uvd=uvd.json (same LABEL twice: "
                         "one method's folds)")
-    p.add_argument("--gt", required=True)
-    p.add_argument("--tolerance", type=int, default=2, help="boundary tolerance in frames")
+    p.add_argument("--gt", required=True, metavar="FILE",
+                   help="the ground truth, a decompose output (or any JSON of the same episodes/segments form)")
+    p.add_argument("--tolerance", type=int, default=2, metavar="FRAMES",
+                   help="a predicted cut within this many frames of a ground-truth cut matches it (default 2)")
     p.add_argument("--allow-partial", action="store_true",
                    help="score only the episodes a method shares with --gt (default: differing sets are an error)")
-    p.add_argument("--out", help="write the metrics JSON here")
+    p.add_argument("--out", help="write the metrics JSON here (keys miou, symmetric_miou, boundary_precision, "
+                                 "boundary_recall, boundary_f1, num_pred, num_gt per episode and mean)")
     force_arg(p)
     p.set_defaults(func=cmd_evaluate)

@@ -120,6 +120,18 @@ def test_module_entry_point():
         assert cmd in res.stdout
 
 
+def test_evaluate_help_names_every_column(capsys):
+    """``evaluate --help`` says what each printed column is and shows --tolerance's default."""
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--help"])
+    text = capsys.readouterr().out
+    assert "(default 2)" in text
+    for column, meaning in (("mIoU", "PREDICTED segments"), ("sym-mIoU", "missed ground-truth"),
+                            ("bP bR bF1", "--tolerance")):
+        line = next(i for i, s in enumerate(text.splitlines()) if s.strip().startswith(column))
+        assert meaning in " ".join(text.splitlines()[line:line + 3]), column
+
+
 def test_demo_subcommand(tmp_path, capsys):
     assert run("demo", "--json", tmp_path / "demo.json") == 0
     assert (tmp_path / "demo.json").is_file()
