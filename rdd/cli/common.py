@@ -13,7 +13,7 @@ from typing import Any
 from rdd.atomic import check_writable
 from rdd.atomic import write_json_atomic as _write_json
 from rdd.data.episode import Episode
-from rdd.encoders.embed import DEFAULT_VIEWS
+from rdd.encoders.embed import DEFAULT_VIEWS, STATE_VIEW, has_view
 
 log = logging.getLogger("rdd")
 
@@ -167,9 +167,11 @@ def resolve_views(args_views: Sequence[str] | None, episode: Episode) -> tuple[s
         views = DEFAULT_VIEWS
     else:
         views = tuple(sorted(episode.views))
-    missing = [v for v in views if v not in episode.views]
+    missing = [v for v in views if not has_view(episode, v)]
     if missing:
-        raise CLIError(f"--views: episode {episode.name!r} has no view {missing}; has {sorted(episode.views)}")
+        state = f" (view {STATE_VIEW!r}: it has no joint state)" if STATE_VIEW in missing else ""
+        raise CLIError(f"--views: episode {episode.name!r} has no view {missing}{state}; "
+                       f"has {sorted(episode.views)}")
     if not views:
         raise CLIError(f"episode {episode.name!r} has no camera views to embed")
     return views

@@ -1,4 +1,5 @@
-"""Frame vectors: per-view L2-normalised embeddings concatenated over views (docs/architecture.md)."""
+"""Frame vectors: per-view L2-normalised embeddings concatenated over views (docs/architecture.md);
+the view ``state`` is the joint state instead of a camera's embedding."""
 
 from __future__ import annotations
 
@@ -9,8 +10,30 @@ import numpy as np
 from rdd.data.episode import Episode
 from rdd.encoders._stream import encode_view
 from rdd.encoders.base import Encoder
+from rdd.errors import InputError
 
 DEFAULT_VIEWS: tuple[str, ...] = ("front", "wrist")
+# The robot's joint state as one more view: no image, no encoder (a camera of that name wins).
+STATE_VIEW = "state"
+
+
+def state_vectors(episode: Episode) -> np.ndarray:
+    """(T, J) the ``state`` view: the episode's joint positions minus their mean over the episode.
+
+    Centred, not standardised: a joint that barely moves (a hand at rest, sensor noise) stays small
+    instead of being scaled up to the size of the joints that do the task.
+    """
+    q = episode.joint_positions
+    if q is None or np.asarray(q).ndim != 2 or not np.asarray(q).shape[1]:
+        raise InputError(f"episode {episode.name!r}: view {STATE_VIEW!r} needs the episode's joint state "
+                         "(joint_positions; a LeRobot dataset's observation.state), and it has none")
+    q = np.asarray(q, dtype=np.float64)
+    return (q - q.mean(axis=0)).astype(np.float32)
+
+
+def has_view(episode: Episode, view: str) -> bool:
+    """Whether ``episode`` can give frame vectors of ``view``: a camera, or its joint state."""
+    return view in episode.views or (view == STATE_VIEW and episode.joint_positions is not None)
 
 
 def l2_normalize(x: np.ndarray, eps: float = 1e-12) -> np.ndarray:
@@ -53,6 +76,10 @@ def episode_frame_vectors(
         raise ValueError(f"episode {episode.name!r}: frame indices must be in [0, {episode.num_frames})")
     per_view = []
     for view in views:
+        if view == STATE_VIEW and view not in episode.views:
+            state = state_vectors(episode)
+            per_view.append(state if idx is None else state[idx])
+            continue
         if idx is None:
             emb = (cache.get_or_compute(episode, encoder, view) if cache is not None
                    else encode_view(encoder, episode, view))

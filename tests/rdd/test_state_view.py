@@ -1,0 +1,79 @@
+"""The ``state`` view: the joint state as one more view of RDD, UVD and the database."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rdd.cli import main
+from rdd.data.episode import Episode
+from rdd.data.native import save_episode
+from rdd.encoders.embed import state_vectors
+
+LENGTHS = [(12, 15, 13), (14, 12, 15), (13, 14, 12), (15, 13, 14), (14, 13, 13)]
+
+
+def state_episode(name: str, lengths: tuple[int, int, int], seed: int) -> Episode:
+    """Sub-task j moves joint j from 0 to 1 (the gripper closed during the second); the camera
+    shows the same noise throughout, so only the joint state tells the sub-tasks apart."""
+    rng = np.random.default_rng(seed)
+    t = sum(lengths)
+    q = np.zeros((t, 4))
+    grip = np.ones(t)
+    start = 0
+    for j, n in enumerate(lengths):
+        q[start:start + n, :j] = 1.0
+        q[start:start + n, j] = np.linspace(0, 1, n)
+        if j == 1:
+            grip[start:start + n] = 0.0
+        start += n
+    q += rng.normal(0, 0.01, q.shape)
+    frames = rng.integers(100, 110, (t, 8, 8, 3)).astype(np.uint8)
+    return Episode(name=name, views={"front": frames}, gripper_open=grip, joint_positions=q,
+                   joint_velocities=np.ones((t, 4)), goal="move the joints", task="toy")
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("state")
+    for k, lengths in enumerate(LENGTHS):
+        save_episode(state_episode(f"ep{k}", lengths, k), root / f"ep{k}")
+    return root
+
+
+def test_state_vectors_are_the_joint_state_centred_per_episode():
+    ep = state_episode("e", (5, 6, 7), 0)
+    v = state_vectors(ep)
+    q = ep.joint_positions
+    assert v.shape == q.shape and v.dtype == np.float32
+    np.testing.assert_allclose(v.mean(axis=0), 0, atol=1e-6)
+    np.testing.assert_allclose(v[7] - v[2], q[7] - q[2], atol=1e-6)
+
+
+def test_rdd_on_the_state_view_finds_the_joint_sub_tasks(data, tmp_path):
+    common = ["--format", "native", "--data", str(data), "--encoder", "pixels", "--encoder-option", "size=4",
+              "--no-cache"]
+    assert main(["build-db", *common, "--views", "state", "--exclude", "ep4", "--no-calibrate",
+                 "--out", str(tmp_path / "db")]) == 0
+    assert json.loads((tmp_path / "db" / "manifest.json").read_text())["views"] == ["state"]
+    assert main(["decompose", *common, "--include", "ep4", "--decomposer", "rdd", "--db", str(tmp_path / "db"),
+                 "--out", str(tmp_path / "rdd.json")]) == 0
+    segs = json.loads((tmp_path / "rdd.json").read_text())["episodes"][0]["segments"]
+    # ep4's sub-tasks change at frames 14 and 27 (the expert rule cuts one frame later, where the
+    # gripper state has changed): the database was built from the other four episodes' cuts
+    assert len(segs) == 3
+    assert abs(segs[0][1] - 14) <= 1 and abs(segs[1][1] - 27) <= 1
+
+
+def test_state_view_without_joint_state_is_a_one_line_error(tmp_path, capsys):
+    ep = state_episode("bare", (5, 6, 7), 0)
+    bare = Episode(name="bare", views=ep.views, gripper_open=ep.gripper_open, goal="g", task="toy")
+    save_episode(bare, tmp_path / "d" / "bare")
+    code = main(["build-db", "--format", "native", "--data", str(tmp_path / "d"), "--encoder", "pixels",
+                 "--views", "state", "--no-cache", "--no-calibrate", "--out", str(tmp_path / "db")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "'state'" in err and "joint state" in err
+    assert not (tmp_path / "db").exists()
