@@ -77,6 +77,22 @@ def toy_native(tmp_path_factory) -> Path:
     return root
 
 
+@pytest.fixture(scope="session")
+def native_six(tmp_path_factory) -> Path:
+    """``<tmp>/ds``: six 16-frame native episodes ep0-ep5 (front and wrist views; the gripper is closed
+    for the second quarter), shared by the resume and Ray executor tests, which only read it."""
+    from rdd.data.episode import Episode
+    from rdd.data.native import save_episode
+
+    root = tmp_path_factory.mktemp("six") / "ds"
+    for k in range(6):
+        frames = np.random.default_rng(k).integers(0, 255, size=(16, 8, 8, 3), dtype=np.uint8)
+        save_episode(Episode(name=f"ep{k}", views={"front": frames, "wrist": frames[:, ::-1].copy()},
+                             gripper_open=np.repeat([1.0, 0.0, 1.0, 1.0], 4), joint_velocities=np.ones((16, 7)),
+                             goal="toy", task="toy"), root / f"ep{k}")
+    return root
+
+
 @pytest.fixture
 def cli_fails(capsys):
     """``cli_fails(*argv, expect=(...), absent=(...))``: run ``python -m rdd`` in process and assert

@@ -18,25 +18,12 @@ import numpy as np
 import pytest
 
 from rdd.cli import main
-from rdd.data.episode import Episode
-from rdd.data.native import load_episode, save_episode
+from rdd.data.native import load_episode
 from rdd.decomposers.uniform import UniformDecomposer
 from rdd.decomposers.uvd import UVDDecomposer
 
 ROOT = Path(__file__).resolve().parents[2]
-NAMES = [f"ep{k}" for k in range(6)]
-
-
-@pytest.fixture(scope="module")
-def six(tmp_path_factory) -> Path:
-    """Six 16-frame native episodes (front and wrist views, gripper closed in the middle)."""
-    root = tmp_path_factory.mktemp("six") / "ds"
-    for k, name in enumerate(NAMES):
-        frames = np.random.default_rng(k).integers(0, 255, size=(16, 8, 8, 3), dtype=np.uint8)
-        save_episode(Episode(name=name, views={"front": frames, "wrist": frames[:, ::-1].copy()},
-                             gripper_open=np.repeat([1.0, 0.0, 1.0, 1.0], 4), joint_velocities=np.ones((16, 7)),
-                             goal="toy", task="toy"), root / name)
-    return root
+NAMES = [f"ep{k}" for k in range(6)]  # the episodes of the native_six fixture
 
 
 def uvd_args(data: Path, out: Path, cache: Path | None) -> list[str]:
@@ -67,25 +54,25 @@ def count_calls(monkeypatch, cls, stop_at: int | None = None) -> Counter:
 
 
 @pytest.mark.parametrize("cached", [True, False], ids=["cache", "no-cache"])
-def test_decompose_resumes_after_a_stop(six, tmp_path, monkeypatch, cached):
+def test_decompose_resumes_after_a_stop(native_six, tmp_path, monkeypatch, cached):
     cache = tmp_path / "cache" if cached else None
-    assert main(uvd_args(six, tmp_path / "ref.json", cache)) == 0
+    assert main(uvd_args(native_six, tmp_path / "ref.json", cache)) == 0
     out = tmp_path / "out.json"
     first = count_calls(monkeypatch, UVDDecomposer, stop_at=3)
-    assert main(uvd_args(six, out, cache)) == 130  # stopped at the fourth episode
+    assert main(uvd_args(native_six, out, cache)) == 130  # stopped at the fourth episode
     assert not out.exists() and len(parts_of(out)) == 3 and sorted(first) == NAMES[:3]
     monkeypatch.undo()
     second = count_calls(monkeypatch, UVDDecomposer)
-    assert main(uvd_args(six, out, cache)) == 0
+    assert main(uvd_args(native_six, out, cache)) == 0
     assert sorted(second) == NAMES[3:] and set(second.values()) == {1}  # none twice, none lost
     assert out.read_bytes() == (tmp_path / "ref.json").read_bytes()
     assert not (tmp_path / ".out.json.parts").exists()  # removed with the output written
 
 
-def test_decompose_resumes_after_kill_9(six, tmp_path):
+def test_decompose_resumes_after_kill_9(native_six, tmp_path):
     """A run killed with SIGKILL (no cleanup at all) keeps what it staged; the rerun finishes it."""
     out, ref = tmp_path / "out.json", tmp_path / "ref.json"
-    argv = uvd_args(six, out, None)
+    argv = uvd_args(native_six, out, None)
     slow = textwrap.dedent(f"""
         import sys, time
         from rdd.decomposers.uvd import UVDDecomposer
@@ -106,7 +93,7 @@ def test_decompose_resumes_after_kill_9(six, tmp_path):
         proc.wait()
     staged = len(parts_of(out))
     assert not out.exists() and 2 <= staged < len(NAMES), staged
-    assert main(uvd_args(six, ref, None)) == 0
+    assert main(uvd_args(native_six, ref, None)) == 0
     calls: Counter = Counter()
     original = UVDDecomposer.decompose
     try:
@@ -118,9 +105,9 @@ def test_decompose_resumes_after_kill_9(six, tmp_path):
     assert out.read_bytes() == ref.read_bytes()
 
 
-def test_changed_settings_reuse_no_part(six, tmp_path, monkeypatch):
+def test_changed_settings_reuse_no_part(native_six, tmp_path, monkeypatch):
     def uniform(n: int) -> list[str]:
-        return ["decompose", "--format", "native", "--data", str(six), "--decomposer", "uniform",
+        return ["decompose", "--format", "native", "--data", str(native_six), "--decomposer", "uniform",
                 "--option", f"n_segments={n}", "--out", str(tmp_path / "out.json")]
 
     count_calls(monkeypatch, UniformDecomposer, stop_at=4)
@@ -135,17 +122,17 @@ def test_changed_settings_reuse_no_part(six, tmp_path, monkeypatch):
     assert [len(e["segments"]) for e in episodes] == [4] * 6
 
 
-def test_two_workers_write_the_same_bytes(six, tmp_path, capsys):
-    assert main(uvd_args(six, tmp_path / "one.json", None)) == 0
-    assert main([*uvd_args(six, tmp_path / "two.json", None), "--workers", "2"]) == 0
+def test_two_workers_write_the_same_bytes(native_six, tmp_path, capsys):
+    assert main(uvd_args(native_six, tmp_path / "one.json", None)) == 0
+    assert main([*uvd_args(native_six, tmp_path / "two.json", None), "--workers", "2"]) == 0
     assert (tmp_path / "two.json").read_bytes() == (tmp_path / "one.json").read_bytes()
-    build = ["build-db", "--format", "native", "--data", str(six), "--encoder", "pixels", "--encoder-option",
+    build = ["build-db", "--format", "native", "--data", str(native_six), "--encoder", "pixels", "--encoder-option",
              "size=4", "--no-cache", "--calibration-sample", "2"]
     assert main([*build, "--out", str(tmp_path / "db1")]) == 0
     assert main([*build, "--out", str(tmp_path / "db2"), "--workers", "2"]) == 0
     assert tree_bytes(tmp_path / "db2") == tree_bytes(tmp_path / "db1")
     capsys.readouterr()
-    assert main([*uvd_args(six, tmp_path / "x.json", None), "--workers", "0"]) == 2
+    assert main([*uvd_args(native_six, tmp_path / "x.json", None), "--workers", "0"]) == 2
     assert "--workers 0: must be >= 1" in capsys.readouterr().err
 
 
@@ -153,10 +140,10 @@ def tree_bytes(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def test_build_db_resumes_its_embedding(six, tmp_path, monkeypatch):
+def test_build_db_resumes_its_embedding(native_six, tmp_path, monkeypatch):
     import rdd.cli.build_db as build_db
 
-    build = ["build-db", "--format", "native", "--data", str(six), "--encoder", "pixels", "--encoder-option",
+    build = ["build-db", "--format", "native", "--data", str(native_six), "--encoder", "pixels", "--encoder-option",
              "size=4", "--no-cache", "--calibration-sample", "2"]
     assert main([*build, "--out", str(tmp_path / "ref")]) == 0
     calls: list[str] = []
@@ -211,10 +198,10 @@ def test_write_lerobot_resumes(lerobot_factory, tmp_path, monkeypatch):
     assert not (tmp_path / ".copy.parts").exists()
 
 
-def test_release_forgets_loaded_frames(six):
+def test_release_forgets_loaded_frames(native_six):
     """Episodes are released one at a time: a native episode's decoded frames are dropped (read again
     on the next load)."""
-    ep = load_episode(six / "ep0")
+    ep = load_episode(native_six / "ep0")
     frames = ep.frames("front")
     assert ep.views["front"]._array is not None
     ep.release()

@@ -17,19 +17,7 @@ from rdd.decomposers.uvd import UVDDecomposer
 from rdd.progress import EpisodeBar
 
 INSTALL = "make install-cluster"
-NAMES = [f"ep{k}" for k in range(5)]
-
-
-@pytest.fixture(scope="module")
-def five(tmp_path_factory) -> Path:
-    """Five 16-frame native episodes (two views, gripper closed in the middle)."""
-    root = tmp_path_factory.mktemp("five") / "ds"
-    for k, name in enumerate(NAMES):
-        frames = np.random.default_rng(k).integers(0, 255, size=(16, 8, 8, 3), dtype=np.uint8)
-        save_episode(Episode(name=name, views={"front": frames, "wrist": frames[:, ::-1].copy()},
-                             gripper_open=np.repeat([1.0, 0.0, 1.0, 1.0], 4), joint_velocities=np.ones((16, 7)),
-                             goal="toy", task="toy"), root / name)
-    return root
+NAMES = [f"ep{k}" for k in range(6)]  # the episodes of the native_six fixture
 
 
 def uvd(data: Path, out: Path, fmt: str = "native") -> list[str]:
@@ -51,19 +39,19 @@ def parts_of(out: Path) -> list[Path]:
     return sorted(p for p in folder.rglob("*.*") if not p.name.startswith(".")) if folder.exists() else []
 
 
-def test_missing_ray_is_one_line_naming_the_install(five, tmp_path, monkeypatch, cli_fails):
+def test_missing_ray_is_one_line_naming_the_install(native_six, tmp_path, monkeypatch, cli_fails):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
-    cli_fails(*uvd(five, tmp_path / "x.json"), "--executor", "ray", expect=("--executor ray needs Ray", INSTALL))
+    cli_fails(*uvd(native_six, tmp_path / "x.json"), "--executor", "ray", expect=("--executor ray needs Ray", INSTALL))
     assert not (tmp_path / "x.json").exists() and not parts_of(tmp_path / "x.json")
-    cli_fails(*uvd(five, tmp_path / "x.json"), "--ray-address", "auto", expect=("--ray-address auto",
+    cli_fails(*uvd(native_six, tmp_path / "x.json"), "--ray-address", "auto", expect=("--ray-address auto",
                                                                                 "needs --executor ray"))
 
 
-def test_default_starts_and_stops_its_own_local_cluster(five, tmp_path):
+def test_default_starts_and_stops_its_own_local_cluster(native_six, tmp_path):
     ray = pytest.importorskip("ray", reason=f"Ray not installed ({INSTALL})")
     assert not ray.is_initialized()
-    assert main(uvd(five, tmp_path / "local.json")) == 0
-    assert main([*uvd(five, tmp_path / "ray.json"), "--executor", "ray", "--workers", "2"]) == 0
+    assert main(uvd(native_six, tmp_path / "local.json")) == 0
+    assert main([*uvd(native_six, tmp_path / "ray.json"), "--executor", "ray", "--workers", "2"]) == 0
     assert (tmp_path / "ray.json").read_bytes() == (tmp_path / "local.json").read_bytes()
     assert not ray.is_initialized() and not parts_of(tmp_path / "ray.json")
 
@@ -78,9 +66,9 @@ def ray_session():
     ray.shutdown()
 
 
-def test_build_db_on_ray_writes_the_local_database(ray_session, five, tmp_path):
-    assert main(build(five, tmp_path / "local")) == 0
-    assert main([*build(five, tmp_path / "ray"), "--executor", "ray", "--workers", "2"]) == 0
+def test_build_db_on_ray_writes_the_local_database(ray_session, native_six, tmp_path):
+    assert main(build(native_six, tmp_path / "local")) == 0
+    assert main([*build(native_six, tmp_path / "ray"), "--executor", "ray", "--workers", "2"]) == 0
     assert tree_bytes(tmp_path / "ray") == tree_bytes(tmp_path / "local")
     assert ray_session.is_initialized()  # a session the process started is left running
 
@@ -92,8 +80,8 @@ def test_decompose_lerobot_v30_on_ray(ray_session, lerobot_factory, tmp_path):
     assert (tmp_path / "ray.json").read_bytes() == (tmp_path / "local.json").read_bytes()
 
 
-def test_ray_resumes_a_stopped_local_run(ray_session, five, tmp_path, monkeypatch):
-    assert main(uvd(five, tmp_path / "ref.json")) == 0
+def test_ray_resumes_a_stopped_local_run(ray_session, native_six, tmp_path, monkeypatch):
+    assert main(uvd(native_six, tmp_path / "ref.json")) == 0
     out = tmp_path / "out.json"
     original, calls = UVDDecomposer.decompose, []
 
@@ -104,12 +92,12 @@ def test_ray_resumes_a_stopped_local_run(ray_session, five, tmp_path, monkeypatc
         return original(self, episode)
 
     monkeypatch.setattr(UVDDecomposer, "decompose", stop_at_third)
-    assert main(uvd(five, out)) == 130
+    assert main(uvd(native_six, out)) == 130
     monkeypatch.undo()
     assert len(parts_of(out)) == 2
     advanced: list[str] = []
     monkeypatch.setattr(EpisodeBar, "advance", lambda self, name, frames, seconds: advanced.append(name))
-    assert main([*uvd(five, out), "--executor", "ray", "--workers", "2"]) == 0
+    assert main([*uvd(native_six, out), "--executor", "ray", "--workers", "2"]) == 0
     assert sorted(advanced) == NAMES[2:]  # the two staged episodes were not sent again
     assert out.read_bytes() == (tmp_path / "ref.json").read_bytes()
     assert not parts_of(out)
