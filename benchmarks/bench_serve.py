@@ -32,28 +32,7 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-COLOURS = np.array([[230, 30, 30], [30, 230, 30], [30, 30, 230]], dtype=float)
 ENCODER_ARGS = ("--encoder-option", "size=4")  # the pixels encoder the database is built with
-
-
-def synthetic_episode(name: str, lengths: Sequence[int], seed: int):
-    """Three sub-tasks: the scene colour drifts between three targets, the gripper closed in the second."""
-    from rdd.data.episode import Episode
-
-    rng = np.random.default_rng(seed)
-    t = sum(lengths)
-    frames = np.zeros((t, 16, 16, 3), dtype=np.uint8)
-    grip, start = np.ones(t), 0
-    for j, n in enumerate(lengths):
-        a, b = COLOURS[j], COLOURS[(j + 1) % 3]
-        for i in range(n):
-            c = a + (b - a) * i / max(n - 1, 1)
-            frames[start + i] = np.clip(c + rng.normal(0, 3, size=(16, 16, 3)), 0, 255)
-        if j == 1:
-            grip[start:start + n] = 0.0
-        start += n
-    return Episode(name=name, views={"front": frames, "wrist": frames[:, ::-1].copy()}, gripper_open=grip,
-                   joint_velocities=np.ones((t, 7)), goal="move the colours", task="toy")
 
 
 def synthetic_setup(root: Path) -> dict[str, Any]:
@@ -63,10 +42,11 @@ def synthetic_setup(root: Path) -> dict[str, Any]:
 
     from rdd.cli import main
     from rdd.data.native import save_episode
+    from rdd.data.native_synth import colour_episode
 
     data = root / "native"
     lengths = [(12, 15, 13), (14, 12, 15), (13, 14, 12), (15, 13, 14), (18, 16, 17)]
-    episodes = [synthetic_episode(f"ep{k}", n, k) for k, n in enumerate(lengths)]
+    episodes = [colour_episode(f"ep{k}", n, k) for k, n in enumerate(lengths)]
     for ep in episodes:
         save_episode(ep, data / ep.name)
     db = root / "db"

@@ -13,39 +13,17 @@ import pytest
 
 from rdd.cli import main
 from rdd.cli.common import parse_options
-from rdd.data.episode import Episode
 from rdd.data.native import save_episode
+from rdd.data.native_synth import colour_episode
 
 ROOT = Path(__file__).resolve().parents[2]
-COLOURS = np.array([[230, 30, 30], [30, 230, 30], [30, 30, 230]], dtype=float)
-
-
-def synthetic_episode(name: str, lengths: tuple[int, int, int], seed: int) -> Episode:
-    """Three sub-tasks: the scene colour drifts between three targets and the gripper is closed
-    during the second, so the expert rule cuts where the gripper state changes."""
-    rng = np.random.default_rng(seed)
-    t = sum(lengths)
-    frames = np.zeros((t, 16, 16, 3), dtype=np.uint8)
-    vel = np.ones((t, 7))
-    grip = np.ones(t)
-    start = 0
-    for j, n in enumerate(lengths):
-        a, b = COLOURS[j], COLOURS[(j + 1) % 3]
-        for i in range(n):
-            c = a + (b - a) * i / max(n - 1, 1)
-            frames[start + i] = np.clip(c + rng.normal(0, 3, size=(16, 16, 3)), 0, 255)
-        if j == 1:
-            grip[start:start + n] = 0.0
-        start += n
-    return Episode(name=name, views={"front": frames, "wrist": frames[:, ::-1].copy()},
-                   gripper_open=grip, joint_velocities=vel, goal="move the colours", task="toy")
 
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     root = tmp_path_factory.mktemp("native")
     for k, lengths in enumerate([(12, 15, 13), (14, 12, 15), (13, 14, 12), (15, 13, 14)]):
-        save_episode(synthetic_episode(f"ep{k}", lengths, k), root / f"ep{k}")
+        save_episode(colour_episode(f"ep{k}", lengths, k), root / f"ep{k}")
     return root
 
 

@@ -91,3 +91,15 @@ def test_errors_name_the_fault(tmp_path):
     with pytest.raises(ValueError, match="meta"):
         save_episode(bad, tmp_path / "m")
     assert not (tmp_path / "m").exists()
+
+
+def test_colour_episode_drifts_red_green_blue_with_the_gripper_closed_in_the_second():
+    from rdd.data.native_synth import colour_episode
+
+    ep = colour_episode("c", [4, 5, 6], seed=0, size=8)
+    front = ep.frames("front").astype(float).mean(axis=(1, 2))
+    assert ep.num_frames == 15 and front.shape == (15, 3)
+    assert front[0].argmax() == 0 and front[4].argmax() == 1 and front[9].argmax() == 2  # red, green, blue starts
+    assert front[14].argmax() == 0  # the last sub-task ends back at red
+    assert list(ep.gripper_open) == [1.0] * 4 + [0.0] * 5 + [1.0] * 6
+    assert np.array_equal(ep.frames("wrist"), ep.frames("front")[:, ::-1])
