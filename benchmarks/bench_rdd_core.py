@@ -48,6 +48,10 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--naive-limit", default="50")
     p.add_argument("--out", type=Path, default=Path("outputs/bench_rdd_core"))
     args = p.parse_args(argv)
+    if args.data is not None and not Path(args.data).is_dir():
+        # before any work: the build-db part runs first and would fail deep in the CLI with a traceback
+        print(f"bench_rdd_core: --data {args.data}: no such folder", file=sys.stderr)
+        sys.exit(2)
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     build = None

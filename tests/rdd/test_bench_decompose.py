@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -52,3 +54,14 @@ def test_rdd_core_benchmark_one_run(tmp_path):
     assert all(r["recall_at_1"] == pytest.approx(1.0) for r in rows)  # all three are exact searches
     summary = (out / "summary.md").read_text()
     assert "OOD" in summary and "| 700 | 16 | exact |" in summary
+
+
+def test_rdd_core_benchmark_missing_data_is_one_line(tmp_path):
+    """A --data folder that does not exist: exit 2 and one line naming the option and path, before any work."""
+    missing = tmp_path / "no_such_episodes"
+    proc = subprocess.run([sys.executable, str(BENCH.parent / "bench_rdd_core.py"), "--data", str(missing),
+                           "--out", str(tmp_path / "core")], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "--data" in proc.stderr and str(missing) in proc.stderr
+    assert not (tmp_path / "core").exists()
