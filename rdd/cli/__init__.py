@@ -24,9 +24,9 @@ from rdd.cli.common import CLIError
 SUBCOMMANDS = (build_db, calibrate, decompose, evaluate, plot, demo, serve)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``python -m rdd``."""
-    parser = argparse.ArgumentParser(prog="python -m rdd", description=__doc__.splitlines()[0])
+def build_parser(prog: str = "rdd") -> argparse.ArgumentParser:
+    """The argument parser of the ``rdd`` script, its usage lines naming the program as ``prog``."""
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="log each step, and print the traceback of an error")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -35,9 +35,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m rdd`` and the ``rdd`` script."""
-    args = build_parser().parse_args(argv)
+def main(argv: Sequence[str] | None = None, prog: str = "rdd") -> int:
+    """Entry point of the ``rdd`` script and, with ``prog="python -m rdd"``, of ``python -m rdd``."""
+    args = build_parser(prog).parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:

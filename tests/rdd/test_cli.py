@@ -96,6 +96,16 @@ def test_module_entry_point():
     assert res.returncode == 0
     for cmd in ("build-db", "decompose", "evaluate", "plot", "demo"):
         assert cmd in res.stdout
+    assert res.stdout.startswith("usage: python -m rdd ")
+
+
+def test_console_script_usage_names_rdd():
+    """The ``rdd`` script pip generates calls ``rdd.cli.main()``: its usage lines say ``rdd``."""
+    script = "import sys; from rdd.cli import main; sys.exit(main())"
+    res = subprocess.run([sys.executable, "-c", script, "decompose"], cwd=ROOT, capture_output=True,
+                         text=True, timeout=60)
+    assert res.returncode == 2
+    assert res.stderr.startswith("usage: rdd decompose ") and "python -m" not in res.stderr
 
 
 def test_evaluate_help_names_every_column(capsys):
