@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -145,7 +144,8 @@ def load_data(args: argparse.Namespace) -> list[Episode]:
     if args.format == "lerobot" and episodes:
         from rdd.data.lerobot import describe_layout
 
-        print(f"lerobot: {describe_layout(episodes[0])}", file=sys.stderr)
+        # a detail of the reading, once per command: shown with -v, not on every plain run
+        log.info("lerobot: %s", describe_layout(episodes[0]))
     return episodes
 
 

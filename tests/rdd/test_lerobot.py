@@ -169,17 +169,36 @@ def test_names_inference_and_options(tmp_path, caplog):
     assert eps[0].gripper_open.tolist() == [0.0] * 6
 
 
-def test_real_g1_expert_rule_through_the_cli(tmp_path, capsys, real_data):
+def test_real_g1_expert_rule_through_the_cli(tmp_path, caplog, real_data):
     """Issue 14's first attempt: gripper_key=observation.state now uses the inferred hand dims, and
     the expert rule does not shatter the episodes (it gave 24-48 five-frame segments)."""
     G1 = real_data("lerobot/unitree_g1_pick_bottle")
     from rdd.cli import main
 
     out = tmp_path / "expert.json"
-    assert main(["decompose", "--format", "lerobot", "--data", str(G1), "--reader-option", "skip_missing=true",
-                 "--reader-option", "gripper_key=observation.state", "--decomposer", "expert",
-                 "--out", str(out)]) == 0
-    assert "right [20, 21, 22, 23, 24, 25] (inferred)" in capsys.readouterr().err
+    with caplog.at_level("INFO", logger="rdd"):
+        assert main(["-v", "decompose", "--format", "lerobot", "--data", str(G1), "--reader-option",
+                     "skip_missing=true", "--reader-option", "gripper_key=observation.state", "--decomposer",
+                     "expert", "--out", str(out)]) == 0
+    assert "right [20, 21, 22, 23, 24, 25] (inferred)" in caplog.text
     for rec in json.loads(out.read_text())["episodes"]:
         lengths = [e - s for s, e in rec["segments"]]
         assert 3 <= len(lengths) <= 12 and min(lengths) >= 6  # 0.2 s at 30 fps
+
+
+def test_cli_names_the_dims_it_used_with_verbose_only(lerobot_factory, tmp_path):
+    """The reader's dims line is a -v detail: absent from a plain run's stderr, logged once with -v."""
+    import subprocess
+    import sys
+
+    data = lerobot_factory("v3.0")
+    argv = ["decompose", "--format", "lerobot", "--data", str(data), "--decomposer", "uniform", "--no-cache"]
+    errs = {}
+    for flags in ((), ("-v",)):
+        out = tmp_path / f"out{len(flags)}.json"
+        proc = subprocess.run([sys.executable, "-m", "rdd", *flags, *argv, "--out", str(out)], capture_output=True,
+                              text=True, timeout=120, cwd=Path(__file__).resolve().parents[2])
+        assert proc.returncode == 0, proc.stderr
+        errs[flags] = proc.stderr
+    assert "arm joints" not in errs[()]
+    assert errs[("-v",)].count("arm joints") == 1 and "--reader-option joint_indices" in errs[("-v",)]

@@ -152,13 +152,13 @@ def test_write_lerobot_is_all_or_nothing(lerobot_factory, tmp_path, endpoint, ca
 
 
 def cli_fails(capsys, *argv, expect: tuple[str, ...]) -> None:
-    """Exit status 2 and the error as one line (after the reader's line naming the dims it inferred)."""
+    """Exit status 2 and the error as one line (the reader's dims line is for -v only)."""
     from rdd.cli import main
 
     capsys.readouterr()
     assert main([str(a) for a in argv]) == 2, argv
     err = capsys.readouterr().err
-    lines = [ln for ln in err.strip().splitlines() if not ln.startswith("lerobot: arm joints")]
+    lines = err.strip().splitlines()
     assert "Traceback" not in err and len(lines) == 1 and lines[0].startswith("error"), err
     for word in expect:
         assert word in lines[0], (word, err)
