@@ -21,6 +21,7 @@ import numpy as np
 from rdd.cli.common import CLIError, parse_options
 from rdd.cli.components import SET_BY_CLI, make_decomposer
 from rdd.cli.staging import _set_torch_threads, cores
+from rdd.serve.body_limit import DEFAULT_MAX_BODY_BYTES
 from rdd.serve.service import DEFAULT_MAX_FRAMES, DecomposeService
 
 # The worker processes of --workers N > 1 read the command's arguments here (JSON, set by the parent).
@@ -68,7 +69,7 @@ def worker_app():
     show_progress(False)
     service = make_service(args)
     _set_torch_threads(max(1, cores() // args.workers))  # after the load: torch is imported by then
-    return create_app(service)
+    return create_app(service, args.max_body_bytes)
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -77,6 +78,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise CLIError(f"--workers {args.workers}: must be at least 1")
     if not 0 < args.port < 65536:
         raise CLIError(f"--port {args.port}: must be in 1..65535")
+    if args.max_body_bytes < 1:
+        raise CLIError(f"--max-body-bytes {args.max_body_bytes}: must be at least 1")
     try:
         import uvicorn
     except ImportError as exc:
@@ -86,7 +89,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     show_progress(False)
     service = make_service(args)
-    app = create_app(service)  # fails here, not in a worker, when FastAPI is missing
+    app = create_app(service, args.max_body_bytes)  # fails here, not in a worker, when FastAPI is missing
     level = "info" if args.verbose else "warning"
     print(f"serving {', '.join(service.decomposers)} on http://{args.host}:{args.port} ({args.workers} "
           f"worker(s); database {args.db}, encoder {service.encoder_name}, views {', '.join(service.views)})",
@@ -114,6 +117,9 @@ def add_parser(sub) -> None:
                    help="serve only image files inside DIR (relative request paths are taken from DIR)")
     p.add_argument("--max-frames", type=int, default=DEFAULT_MAX_FRAMES,
                    help=f"refuse requests of more frames (default {DEFAULT_MAX_FRAMES})")
+    p.add_argument("--max-body-bytes", type=int, default=DEFAULT_MAX_BODY_BYTES, metavar="N",
+                   help=f"refuse request bodies of more than N bytes with 413 (default {DEFAULT_MAX_BODY_BYTES}, "
+                        "64 MiB)")
     p.add_argument("--encoder", help="encoder (default the database's)")
     p.add_argument("--encoder-option", action="append", metavar="KEY=VALUE")
     p.add_argument("--views", nargs="+", help="database views the request's paths of a frame stand for, in order "

@@ -3,7 +3,7 @@ server's routes (``POST /decompose``, ``GET /config``) and ``GET /health``.
 
 Errors answer ``{"error": "<field>: <what is wrong>"}``: 422 for a malformed body or a bad value,
 400 for an unknown method (the official server's status), 403 for a path outside ``--root``, 404
-for a file that does not exist. The handlers are plain functions, which FastAPI runs in its thread
+for a file that does not exist, 413 for a body over ``max_body_bytes`` (:mod:`rdd.serve.body_limit`). The handlers are plain functions, which FastAPI runs in its thread
 pool; the service lets one request compute at a time per worker.
 """
 
@@ -12,6 +12,7 @@ pool; the service lets one request compute at a time per worker.
 import os
 from typing import Any
 
+from rdd.serve.body_limit import DEFAULT_MAX_BODY_BYTES, BodyLimit
 from rdd.serve.service import DecomposeService, RequestError
 
 
@@ -36,8 +37,9 @@ def _field(loc: tuple) -> str:
     return out
 
 
-def create_app(service: DecomposeService):
-    """A FastAPI app answering with ``service`` (loaded before, once per worker)."""
+def create_app(service: DecomposeService, max_body_bytes: int = DEFAULT_MAX_BODY_BYTES):
+    """A FastAPI app answering with ``service`` (loaded before, once per worker); bodies over
+    ``max_body_bytes`` answer 413."""
     fastapi, pydantic = _fastapi()
     from fastapi.exceptions import RequestValidationError
     from fastapi.responses import JSONResponse
@@ -51,6 +53,8 @@ def create_app(service: DecomposeService):
         preprocessor: str | None = None
 
     app = fastapi.FastAPI(title="rdd decomposition server")
+    # around the routes, so an oversized body is refused before FastAPI reads or parses any of it
+    app.add_middleware(BodyLimit, max_bytes=max_body_bytes)
     app.state.service = service
 
     @app.exception_handler(RequestValidationError)

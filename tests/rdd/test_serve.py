@@ -168,8 +168,36 @@ def test_load_8_clients_x_25_requests(setup, capsys):
 def test_command_errors_are_one_line(tmp_path, capsys):
     assert main(["serve", "--db", str(tmp_path / "nope"), "--port", "9"]) == 2
     assert main(["serve", "--db", str(tmp_path), "--workers", "0"]) == 2
+    assert main(["serve", "--db", str(tmp_path), "--max-body-bytes", "0"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 2 and "nope" in err[0] and "--workers 0" in err[1]
+    assert len(err) == 3 and "nope" in err[0] and "--workers 0" in err[1] and "--max-body-bytes 0" in err[2]
+
+
+def test_body_over_the_limit_is_413(setup):
+    """--max-body-bytes 2048: a larger body answers 413 and one-line JSON, declared or chunked; a smaller one is served."""
+    import http.client
+
+    frames = setup["frames"]
+    small = json.dumps({"paths": frames[:3], "method": "uvd"}).encode()
+    big = json.dumps({"paths": frames, "method": "uvd", "pad": "x" * 4096}).encode()
+    assert len(small) <= 2048 < len(big)
+    with bench.Server(setup["db"], *bench.ENCODER_ARGS, "--max-body-bytes", "2048") as srv:
+        assert bench.call(srv.url + "/decompose", json.loads(small))[0] == 200
+        answers = []
+        for chunked in (False, True):
+            conn = http.client.HTTPConnection("127.0.0.1", srv.port, timeout=30)
+            body = iter([big[:1000], big[1000:]]) if chunked else big
+            conn.request("POST", "/decompose", body=body, headers={"Content-Type": "application/json"},
+                         encode_chunked=chunked)
+            res = conn.getresponse()
+            answers.append((res.status, res.read()))
+            conn.close()
+        assert bench.call(srv.url + "/health")[0] == 200  # still serving
+    for status, raw in answers:
+        assert status == 413, raw
+        answer = json.loads(raw)
+        assert set(answer) == {"error"} and answer["error"].startswith("body:") and "2048" in answer["error"]
+        assert len(raw.decode().splitlines()) == 1
 
 
 def test_missing_extra_names_the_install_line(monkeypatch):
