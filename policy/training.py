@@ -19,6 +19,8 @@ from tqdm import tqdm
 from policy.network import KeyframeNet, NetConfig, gripper_equivalent
 from rdd.atomic import atomic_file
 from rdd.checks import check_fields, number, whole
+from rdd.encoders._checkpoint import unreadable_reason
+from rdd.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -231,7 +233,8 @@ def evaluate_network(net: KeyframeNet, data: KeyframeDataset, batch: int = 4096)
 
 
 def save_checkpoint(path: Path, net: KeyframeNet, meta: dict) -> None:
-    """Write ``{state_dict, net config, meta}`` atomically."""
+    """Write ``{state_dict, net config, meta}`` atomically: tensors and plain containers only, so that
+    :func:`load_checkpoint` reads it with ``weights_only=True``."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_file(path) as fh:
         torch.save({"state_dict": net.state_dict(), "net_cfg": net.cfg.to_dict(), "meta": meta}, fh)
@@ -241,7 +244,12 @@ def load_checkpoint(path: Path) -> tuple[KeyframeNet, dict]:
     """Inverse of :func:`save_checkpoint`."""
     if not Path(path).is_file():
         raise FileNotFoundError(f"no policy checkpoint at {path}")
-    blob = torch.load(path, map_location="cpu", weights_only=False)
+    try:
+        # weights only: a checkpoint is tensors and plain containers, and loading must never run pickled code
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - re-raised in one line naming the file
+        raise InputError(f"policy checkpoint {path} {unreadable_reason(Path(path), exc)}; "
+                         "retrain the policy to write a checkpoint of weights only") from exc
     net = KeyframeNet(NetConfig(**blob["net_cfg"]))
     net.load_state_dict(blob["state_dict"])
     net.eval()

@@ -64,8 +64,9 @@ def _first_sentence(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {re.split(r'(?<=[.!?]) ', text, maxsplit=1)[0]}" if text else type(exc).__name__
 
 
-def _unreadable(path: Path, exc: BaseException) -> str:
-    """What is wrong with checkpoint ``path`` in one clause, never torch's advice to drop weights_only."""
+def unreadable_reason(path: Path, exc: BaseException) -> str:
+    """What is wrong with checkpoint ``path`` (``exc``: torch.load's error) in one clause, never torch's
+    advice to drop weights_only."""
     with open(path, "rb") as fh:
         head = fh.read(len(LFS_POINTER))
     if not head:
@@ -106,7 +107,7 @@ def load_state(path: Path, name: str, filename: str | None = None, source: str |
     except Exception as exc:  # noqa: BLE001 - re-raised with the file and encoder named
         wanted = f"; expected the official file {filename!r}" if filename else ""
         wanted += f" from {source}" if source else ""
-        raise InputError(f"encoder {name!r}: checkpoint {str(path)!r} {_unreadable(path, exc)}{wanted}") from exc
+        raise InputError(f"encoder {name!r}: checkpoint {str(path)!r} {unreadable_reason(path, exc)}{wanted}") from exc
 
 
 def load_strict(module, state: dict[str, Any], name: str, path: Path | str) -> None:
