@@ -21,7 +21,7 @@ def data_args(p: argparse.ArgumentParser, data_required: bool = True) -> None:
 def embed_args(p: argparse.ArgumentParser) -> None:
     """``--views``, ``--encoder-option`` and the embedding cache."""
     p.add_argument("--views", nargs="+", help="camera views (default front wrist, else all); "
-                   "`state` adds the joint state (centred per episode) as a view")
+                   "`state` adds the joint state (standardised per episode) as a view")
     p.add_argument("--encoder-option", action="append", metavar="KEY=VALUE")
     p.add_argument("--cache-dir", help="embedding cache folder (default $RDD_CACHE_DIR or ~/.cache/rdd)")
     p.add_argument("--no-cache", action="store_true", help="do not cache embeddings")

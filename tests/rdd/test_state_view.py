@@ -10,7 +10,7 @@ import pytest
 from rdd.cli import main
 from rdd.data.episode import Episode
 from rdd.data.native import save_episode
-from rdd.encoders.embed import state_vectors
+from rdd.encoders.embed import STATE_STD_FLOOR, state_vectors
 
 LENGTHS = [(12, 15, 13), (14, 12, 15), (13, 14, 12), (15, 13, 14), (14, 13, 13)]
 
@@ -43,13 +43,18 @@ def data(tmp_path_factory):
     return root
 
 
-def test_state_vectors_are_the_joint_state_centred_per_episode():
-    ep = state_episode("e", (5, 6, 7), 0)
+def test_state_vectors_standardise_each_joint_with_a_floor():
+    t = np.arange(50.0)
+    # joint 0 swings widely, joint 1 half as much, joint 2 is sensor noise, joint 3 never moves
+    q = np.stack([3 * np.sin(t / 8), 1.5 * np.cos(t / 5), 1e-3 * np.sin(t), np.full(50, 0.7)], axis=1)
+    ep = Episode(name="e", views={}, joint_positions=q)
     v = state_vectors(ep)
-    q = ep.joint_positions
     assert v.shape == q.shape and v.dtype == np.float32
-    np.testing.assert_allclose(v.mean(axis=0), 0, atol=1e-6)
-    np.testing.assert_allclose(v[7] - v[2], q[7] - q[2], atol=1e-6)
+    np.testing.assert_allclose(v.mean(axis=0), 0, atol=1e-5)
+    np.testing.assert_allclose(v[:, :2].std(axis=0), 1, rtol=1e-5)  # each moving joint to unit spread
+    floor = STATE_STD_FLOOR * q[:, 0].std()
+    np.testing.assert_allclose(v[:, 2], (q[:, 2] - q[:, 2].mean()) / floor, rtol=1e-4, atol=1e-7)
+    assert np.abs(v[:, 2]).max() < 0.01 and np.abs(v[:, 3]).max() < 1e-6
 
 
 def test_rdd_on_the_state_view_finds_the_joint_sub_tasks(data, tmp_path):
