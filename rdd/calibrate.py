@@ -34,6 +34,8 @@ CALIBRATION_VERSION = 1
 DEFAULT_SAMPLE = 10
 DEFAULT_ALPHAS = (0.0, 0.1, 0.25, 0.5, 1.0, 2.0)
 DEFAULT_MIN_LENS = (2, 4)
+# min_len candidates as fractions of the shortest stored segment
+DEFAULT_MIN_LEN_FACTORS = (0.5, 1.0)
 # max_len candidates as multiples of the longest stored segment (None: unbounded).
 DEFAULT_MAX_LEN_FACTORS = (None, 1.25, 2.0)
 PAPER_POINT = {"alpha": 1.0, "min_len": 2, "max_len": None}
@@ -55,11 +57,14 @@ def sample_episodes(names: Sequence[str], k: int = DEFAULT_SAMPLE, seed: int = 0
 
 
 def default_grid(db: SubtaskDatabase) -> dict[str, list]:
-    """The default grid; max_len values are multiples of the database's longest segment."""
+    """The default grid; max_len values are multiples of the database's longest segment, and
+    min_len values beyond the fixed ones fractions of its shortest (no shorter sub-task was stored)."""
     longest = int(db.durations.max()) + 1
+    shortest = int(db.durations.min()) + 1
     max_lens = sorted({None if f is None else max(2, math.ceil(f * longest))
                        for f in DEFAULT_MAX_LEN_FACTORS}, key=lambda v: (v is not None, v or 0))
-    return {"alpha": list(DEFAULT_ALPHAS), "min_len": list(DEFAULT_MIN_LENS), "max_len": max_lens}
+    min_lens = sorted(set(DEFAULT_MIN_LENS) | {max(2, int(f * shortest)) for f in DEFAULT_MIN_LEN_FACTORS})
+    return {"alpha": list(DEFAULT_ALPHAS), "min_len": min_lens, "max_len": max_lens}
 
 
 def check_grid(grid: Mapping[str, Sequence]) -> dict[str, list]:

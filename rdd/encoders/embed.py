@@ -15,23 +15,30 @@ from rdd.errors import InputError
 DEFAULT_VIEWS: tuple[str, ...] = ("front", "wrist")
 # The robot's joint state as one more view: no image, no encoder (a camera of that name wins).
 STATE_VIEW = "state"
-# Chosen on G1 training episodes (database 16-29, scored on 30-35 against the hand rule): standardised
-# with this floor, boundary F1 0.69 at +-5 frames; centred only 0.55; velocities added 0.62-0.68.
+# Chosen on G1 training episodes (database 16-29, scored on 30-35 against the hand rule; arm joints
+# only): standardised with this floor, boundary F1 0.69 at +-5 frames; centred only 0.55.
 STATE_STD_FLOOR = 0.1
 
 
 def state_vectors(episode: Episode) -> np.ndarray:
-    """(T, J) the ``state`` view: each joint's position standardised over the episode.
+    """(T, J + H) the ``state`` view: the joint positions and each hand's (or the gripper's)
+    opening, each dimension standardised over the episode.
 
-    Each joint minus its mean, over its standard deviation, so a hand's 0..1 and an arm's radians
-    count alike; the deviation is floored at ``STATE_STD_FLOOR`` of the largest joint's, so a joint
-    that barely moves (a hand at rest, sensor noise) stays small instead of being scaled up.
+    The hands come from ``meta["hand_levels"]`` (a LeRobot reader's per-hand level), else the gripper
+    flag. Each dimension minus its mean, over its standard deviation, so a hand's 0..1 and an arm's
+    radians count alike; the deviation is floored at ``STATE_STD_FLOOR`` of the largest one's, so a
+    dimension that barely moves (a hand at rest, sensor noise) stays small instead of being scaled up.
     """
     q = episode.joint_positions
     if q is None or np.asarray(q).ndim != 2 or not np.asarray(q).shape[1]:
         raise InputError(f"episode {episode.name!r}: view {STATE_VIEW!r} needs the episode's joint state "
                          "(joint_positions; a LeRobot dataset's observation.state), and it has none")
     q = np.asarray(q, dtype=np.float64)
+    hands = episode.meta.get("hand_levels")
+    if hands is None and episode.gripper_open is not None:
+        hands = episode.gripper_open
+    if hands is not None:
+        q = np.concatenate([q, np.asarray(hands, dtype=np.float64).reshape(len(q), -1)], axis=1)
     sd = q.std(axis=0)
     scale = np.maximum(sd, STATE_STD_FLOOR * sd.max()) if sd.max() > 0 else np.ones_like(sd)
     return ((q - q.mean(axis=0)) / scale).astype(np.float32)

@@ -7,7 +7,7 @@ import logging
 import numpy as np
 import pytest
 
-from rdd.calibrate import CalibrationError, calibrate, check_grid, sample_episodes
+from rdd.calibrate import CalibrationError, calibrate, check_grid, default_grid, sample_episodes
 from rdd.database import SubtaskDatabase
 from rdd.decomposers.rdd import RDDDecomposer
 from rdd.demo import SyntheticWorld, build_synthetic_database
@@ -85,3 +85,12 @@ def test_bad_input(db_with_frames, caplog):
         sample_episodes(["a"], 0)
     assert sample_episodes(list("abcdef"), 3, seed=0) == sample_episodes(list("abcdef"), 3, seed=0)
     assert len(sample_episodes(list("abcdef"), 3)) == 3 and sample_episodes(list("ab"), 10) == ["a", "b"]
+
+
+def test_default_grid_offers_min_lens_from_the_shortest_stored_segment():
+    v = np.eye(3, dtype=np.float32)
+    # durations are end - 1 - start: segments of 18, 41 and 30 frames
+    db = SubtaskDatabase.from_arrays(v, v, [17, 40, 29])
+    grid = default_grid(db)
+    assert grid["min_len"] == [2, 4, 9, 18]  # the fixed ones, half the shortest, the shortest
+    assert grid["max_len"] == [None, 52, 82]  # 1.25 and 2 times the longest (41 frames), rounded up

@@ -57,6 +57,21 @@ def test_state_vectors_standardise_each_joint_with_a_floor():
     assert np.abs(v[:, 2]).max() < 0.01 and np.abs(v[:, 3]).max() < 1e-6
 
 
+def test_state_view_adds_the_hands_or_the_gripper():
+    t = np.arange(40.0)
+    q = np.stack([np.sin(t / 6), np.cos(t / 4)], axis=1)
+    hands = np.stack([np.full(40, 0.5), (t > 20).astype(float)], axis=1)  # left at rest, right closes
+    grip = (t < 10).astype(float)
+    with_levels = state_vectors(Episode(name="h", views={}, joint_positions=q, gripper_open=grip,
+                                        meta={"hand_levels": hands}))
+    assert with_levels.shape == (40, 4)  # the per-hand levels win over the gripper flag
+    right = hands[:, 1]
+    np.testing.assert_allclose(with_levels[:, 3], (right - right.mean()) / right.std(), rtol=1e-5)
+    assert np.abs(with_levels[:, 2]).max() < 1e-6  # the resting hand stays at zero
+    with_flag = state_vectors(Episode(name="g", views={}, joint_positions=q, gripper_open=grip))
+    np.testing.assert_allclose(with_flag[:, 2], (grip - grip.mean()) / grip.std(), rtol=1e-5)
+
+
 def test_rdd_on_the_state_view_finds_the_joint_sub_tasks(data, tmp_path):
     common = ["--format", "native", "--data", str(data), "--encoder", "pixels", "--encoder-option", "size=4",
               "--no-cache"]
