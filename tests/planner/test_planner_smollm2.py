@@ -35,6 +35,30 @@ def test_the_pretrained_kind_needs_a_pretrained_tower():
         build_pretrained_lm_model(PlannerConfig(kind="smollm2_llava"))  # the tiny CLIP tower
 
 
+def test_auto_numerics_never_time_emulated_bf16(monkeypatch):
+    from planner import train
+
+    class Counting(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.w = torch.nn.Parameter(torch.ones(1))
+            self.dtypes = []
+
+        def forward(self, **batch):
+            self.dtypes.append(torch.get_autocast_dtype("cpu") if torch.is_autocast_enabled("cpu") else None)
+            raise RuntimeError("stop after recording")
+
+    model = Counting()
+    monkeypatch.setattr(train, "native_bf16", lambda: False)
+    assert train.pick_train_dtype(model, {}, "auto") == ("float32", {})
+    assert model.dtypes == []  # not one step run: fp32 is the only candidate
+    assert train.pick_train_dtype(model, {}, "bfloat16") == ("bfloat16", {})  # asked for: kept
+    monkeypatch.setattr(train, "native_bf16", lambda: True)
+    with pytest.raises(RuntimeError, match="stop after recording"):
+        train.pick_train_dtype(model, {"labels": torch.tensor([[1]])}, "auto")
+    assert model.dtypes == [None]  # where bf16 is native, both are timed, fp32 first
+
+
 @pytest.fixture(scope="module")
 def smol_cache(tmp_path_factory):
     """One conversion of the GGUF file for the module (about 30 s)."""
