@@ -75,7 +75,7 @@ def test_smollm2_planner_reads_the_image(tmp_path, monkeypatch):
                         patch_size=32, max_new_tokens=12,
                         align=dict(lr=1e-3, epochs=2, batch_size=8),
                         pretrain=dict(lr=5e-5, epochs=1, batch_size=8),
-                        finetune=dict(lr=1e-3, epochs=3, batch_size=8),
+                        finetune=dict(lr=1e-3, epochs=6, batch_size=8),
                         lora=dict(r=8, alpha=16, dropout=0.0))
     # the first step only: its text (goal, no previous instruction) never tells the side
     first = [ex for ex in training_examples(make_episodes(["open_drawer"], range(40), image_size=224),
