@@ -3,6 +3,7 @@ a stand-in chat-completions server for the VLM tests."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import threading
 import time
@@ -59,6 +60,21 @@ def lerobot_factory(tmp_path):
         return make_lerobot(tmp_path / f"{version}_{count[0]}", version, lengths)
 
     return make
+
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+@pytest.fixture(scope="session")
+def benchmark_module():
+    """Import a script of ``benchmarks/`` by its name (they are scripts, not a package)."""
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    return load
 
 
 @pytest.fixture(scope="module")

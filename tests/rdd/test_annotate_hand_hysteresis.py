@@ -4,22 +4,15 @@ with boundaries known by construction, and end to end on a small LeRobot dataset
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "annotate_hand_hysteresis.py"
-
 
 @pytest.fixture(scope="module")
-def hyst():
-    spec = importlib.util.spec_from_file_location("annotate_hand_hysteresis", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def hyst(benchmark_module):
+    return benchmark_module("annotate_hand_hysteresis")
 
 
 def ramp(start: float, stop: float, frames: int) -> np.ndarray:

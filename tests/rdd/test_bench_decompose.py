@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -13,10 +12,8 @@ import pytest
 BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_decompose.py"
 
 
-def test_benchmark_tiny_run(tmp_path):
-    spec = importlib.util.spec_from_file_location("bench_decompose", BENCH)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+def test_benchmark_tiny_run(tmp_path, benchmark_module):
+    bench = benchmark_module("bench_decompose")
     out = tmp_path / "bench"
     res = bench.main(["--frames", "60", "--max-len", "20", "--entries", "300", "--embed-dim", "32",
                       "--backends", "exact,exact-dense,faiss-flat", "--repeat", "1", "--naive-limit", "10",
@@ -37,12 +34,10 @@ def test_benchmark_tiny_run(tmp_path):
     assert json.loads((out / "results.json").read_text())["candidates"] == res["candidates"]
 
 
-def test_rdd_core_benchmark_one_run(tmp_path):
+def test_rdd_core_benchmark_one_run(tmp_path, benchmark_module):
     """The one-run driver: decomposition per backend and size (approximate ones skipped above the
     limit), recall against exact, OOD vs default, and its summary table."""
-    spec = importlib.util.spec_from_file_location("bench_rdd_core", BENCH.parent / "bench_rdd_core.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = benchmark_module("bench_rdd_core")
     out = tmp_path / "core"
     res = bench.main(["--frames", "50", "--max-len", "15", "--entries", "300", "--embed-dim", "32",
                       "--scale", "300,700", "--scale-embed-dim", "16", "--approx-max-entries", "300",

@@ -4,14 +4,10 @@ killed run's rerun redoes only the episodes not staged and writes the uninterrup
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_scale.py"
 
 
 def test_synthetic_v30_reads_back_frame_by_frame(tmp_path):
@@ -34,11 +30,9 @@ def test_synthetic_v30_reads_back_frame_by_frame(tmp_path):
         np.testing.assert_array_equal(ep.gripper_open, (np.arange(n) < n // 2).astype(float))
 
 
-def test_benchmark_tiny_run(tmp_path, capsys):
+def test_benchmark_tiny_run(tmp_path, capsys, benchmark_module):
     pytest.importorskip("av")
-    spec = importlib.util.spec_from_file_location("bench_scale", BENCH)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = benchmark_module("bench_scale")
     out = tmp_path / "bench"
     res = bench.main(["--episodes", "6", "--frames", "100", "--per-file", "4", "--size", "96x128",
                       "--compare-episodes", "5", "--kill-at", "0.4", "--effnet-episodes", "0", "--out", str(out)])

@@ -5,7 +5,6 @@ of segments, the median of the training annotation), and its resume, read from i
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import re
 import statistics
@@ -21,11 +20,8 @@ FAST = ["--encoder", "pixels", "--encoder-option", "size=4"]
 
 
 @pytest.fixture(scope="module")
-def table():
-    spec = importlib.util.spec_from_file_location("real_data_table", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def table(benchmark_module):
+    return benchmark_module("real_data_table")
 
 
 def last_run(out: Path) -> dict[str, list[str]]:
