@@ -217,8 +217,11 @@ def ambiguous_inner_examples(episodes: Sequence, labelled: Sequence[tuple], boun
     if not ambiguous:
         return []
     starts = {(ex.episode, ex.frame) for ex in boundary}
+    holding = {ex.episode for ex in boundary if _context(ex) in ambiguous}
     out = []
     for ep, (segs, instr) in zip(episodes, labelled, strict=True):
+        if ep.name not in holding:  # no frame of it to add: decode none
+            continue
         inner = examples_from_episode(ep, segs, instr, view=view, include_inner_frames=True,
                                       inner_frame_stride=stride)
         out += [ex for ex in inner if _context(ex) in ambiguous and (ex.episode, ex.frame) not in starts]
