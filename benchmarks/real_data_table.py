@@ -79,6 +79,9 @@ def run_rlbench(args: argparse.Namespace, steps: Steps, folder: Path) -> dict[st
     rule = decompose("rule", folder / "rule.json", names, "--decomposer", "expert")
     preds = [("rule", rule), ("uvd", decompose("uvd", folder / "uvd.json", names, "--decomposer", "uvd",
                                                *encoder_args(args)))]
+    for views in args.uvd_views or []:
+        preds.append((f"uvd_{views}", decompose(f"uvd views {views}", folder / f"uvd_{views}.json", names,
+                                               "--decomposer", "uvd", *encoder_args(args), "--views", *views.split())))
     n_of: dict[str, int] = {}
     for name in names:
         db = folder / f"db_{name}"
@@ -96,8 +99,8 @@ def run_rlbench(args: argparse.Namespace, steps: Steps, folder: Path) -> dict[st
     scores = {"rule": evaluate(args, steps, sec, folder / "eval_rule.json", preds, rule)}
     counts = {n: sum(v == n for v in n_of.values()) for n in sorted(set(n_of.values()))}
     ns = f"{n_of[names[0]]} in every fold" if len(counts) == 1 else ", ".join(f"{n} in {k} folds" for n, k in counts.items())
-    rows = [("rdd", "rdd"), ("rdd_ood", "rdd_ood"), ("uvd", "uvd"), ("uniform", f"uniform (n = {ns})"),
-            ("rule", "rule (the ground truth itself)")]
+    rows = [("rdd", "rdd"), ("rdd_ood", "rdd_ood"), ("uvd", "uvd"), *uvd_rows(args),
+            ("uniform", f"uniform (n = {ns})"), ("rule", "rule (the ground truth itself)")]
     return {"title": f"RLBench open_drawer, leave one episode out ({len(names)} folds)",
             "about": (f"Each fold's database: the other {len(names) - 1} episodes of `{root}`, segmented by the "
                       f"keyframe rule (`build-db`, calibrated). Ground truth: the RLBench keyframe rule "
@@ -158,6 +161,9 @@ def run_g1(args: argparse.Namespace, steps: Steps, folder: Path) -> dict[str, An
                                             {"annotation": "hysteresis", "from": str(hands)}))
     preds = [("rule", f) for f in rule]
     preds += [("uvd", f) for f in decompose("uvd", "uvd", "--decomposer", "uvd", *encoder_args(args))]
+    for views in args.uvd_views or []:
+        preds += [(f"uvd_{views}", f) for f in decompose(f"uvd views {views}", f"uvd_{views}", "--decomposer", "uvd",
+                                                        *encoder_args(args), "--views", *views.split())]
     n_of: dict[str, int] = {}
     for ann, source, segments in (("rule", train_root, "expert"), ("hysteresis", copies / train_root.name, "subtasks")):
         db = folder / f"db_{ann}"
@@ -175,7 +181,7 @@ def run_g1(args: argparse.Namespace, steps: Steps, folder: Path) -> dict[str, An
                                                            "uniform", "--option", f"n_segments={n}")]
     scores = {ann: evaluate(args, steps, sec, folder / f"eval_{ann}.json", preds, gt) for ann, gt in gts.items()}
     rows = [(f"{m}@{a}", f"{m} (db: {a})") for m in ("rdd", "rdd_ood") for a in gts]
-    rows += [("uvd", "uvd")]
+    rows += [("uvd", "uvd"), *uvd_rows(args)]
     rows += [(f"uniform_n{n}", f"uniform (n = {n}: median of the training {' and '.join(a for a in n_of if n_of[a] == n)} "
                                "annotation)") for n in sorted(set(n_of.values()))]
     rows += [("rule", "rule (`--decomposer expert`)")]
@@ -186,6 +192,11 @@ def run_g1(args: argparse.Namespace, steps: Steps, folder: Path) -> dict[str, An
                       "n_segments = the median segment count of a training annotation."),
             "train": list(map(episode_name, train)), "test": sorted(names), "uniform_n": n_of,
             "annotations": list(gts), "rows": table_rows(rows, scores), "commands": steps.commands.get(sec, [])}
+
+
+def uvd_rows(args: argparse.Namespace) -> list[tuple[str, str]]:
+    """The table rows of the extra uvd runs of ``--uvd-views``."""
+    return [(f"uvd_{views}", f"uvd (`--views {views}`)") for views in args.uvd_views or []]
 
 
 def encoder_args(args: argparse.Namespace, name: bool = True) -> list[str]:
@@ -250,6 +261,8 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--build-opt", default="", metavar="ARGS", help="appended to each build-db, e.g. --build-opt=--no-calibrate")
     p.add_argument("--decompose-opt", default="", metavar="ARGS",
                    help="appended to each rdd and rdd_ood decompose, e.g. '--alpha 0.5'")
+    p.add_argument("--uvd-views", action="append", metavar="VIEWS",
+                   help="one more uvd row decomposing these views, e.g. --uvd-views state (repeat for more)")
     p.add_argument("--tolerance", type=int, default=5, help="boundary F1 tolerance in frames (default 5)")
     p.add_argument("--force", action="store_true", help="remake a finished table (its steps are still reused)")
     return p.parse_args(argv)

@@ -10,7 +10,7 @@ import pytest
 from rdd.cli import main
 from rdd.data.episode import Episode
 from rdd.data.native import save_episode
-from rdd.encoders.embed import STATE_STD_FLOOR, state_vectors
+from rdd.encoders.embed import STATE_LEVEL_CENTRE, STATE_LEVEL_SPAN, STATE_STD_FLOOR, state_vectors
 
 LENGTHS = [(12, 15, 13), (14, 12, 15), (13, 14, 12), (15, 13, 14), (14, 13, 13)]
 
@@ -64,12 +64,17 @@ def test_state_view_adds_the_hands_or_the_gripper():
     grip = (t < 10).astype(float)
     with_levels = state_vectors(Episode(name="h", views={}, joint_positions=q, gripper_open=grip,
                                         meta={"hand_levels": hands}))
-    assert with_levels.shape == (40, 4)  # the per-hand levels win over the gripper flag
+    assert with_levels.shape == (40, 6)  # the per-hand levels win over the gripper flag
     right = hands[:, 1]
     np.testing.assert_allclose(with_levels[:, 3], (right - right.mean()) / right.std(), rtol=1e-5)
-    assert np.abs(with_levels[:, 2]).max() < 1e-6  # the resting hand stays at zero
+    assert np.abs(with_levels[:, 2]).max() < 1e-6  # the resting hand stays at zero (standardised)...
+    # ...but its level in its own units is the same in every episode: half open is 0, open is +SPAN/2
+    np.testing.assert_allclose(with_levels[:, 4], 0.0, atol=1e-6)
+    np.testing.assert_allclose(with_levels[:, 5], np.where(t > 20, STATE_LEVEL_SPAN / 2, -STATE_LEVEL_SPAN / 2))
     with_flag = state_vectors(Episode(name="g", views={}, joint_positions=q, gripper_open=grip))
+    assert with_flag.shape == (40, 4)
     np.testing.assert_allclose(with_flag[:, 2], (grip - grip.mean()) / grip.std(), rtol=1e-5)
+    np.testing.assert_allclose(with_flag[:, 3], (grip - STATE_LEVEL_CENTRE) * STATE_LEVEL_SPAN)
 
 
 def test_rdd_on_the_state_view_finds_the_joint_sub_tasks(data, tmp_path):
@@ -81,10 +86,10 @@ def test_rdd_on_the_state_view_finds_the_joint_sub_tasks(data, tmp_path):
     assert main(["decompose", *common, "--include", "ep4", "--decomposer", "rdd", "--db", str(tmp_path / "db"),
                  "--out", str(tmp_path / "rdd.json")]) == 0
     segs = json.loads((tmp_path / "rdd.json").read_text())["episodes"][0]["segments"]
-    # ep4's sub-tasks change at frames 14 and 27 (the expert rule cuts one frame later, where the
-    # gripper state has changed): the database was built from the other four episodes' cuts
+    # ep4's sub-tasks change at frames 14 and 27; the expert rule, whose cuts on the other four
+    # episodes made the database, cuts one frame later (15, 28), where the gripper state has changed
     assert len(segs) == 3
-    assert abs(segs[0][1] - 14) <= 1 and abs(segs[1][1] - 27) <= 1
+    assert abs(segs[0][1] - 15) <= 1 and abs(segs[1][1] - 28) <= 1
 
 
 def test_state_view_without_joint_state_is_a_one_line_error(tmp_path, capsys):
