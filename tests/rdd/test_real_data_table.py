@@ -118,3 +118,10 @@ def test_g1_two_annotations(table, real_data, tmp_path, monkeypatch):
     assert segments(out / "g1" / "gt_hysteresis.json") == {"episode_000036": hands["episode_000036"]}
     table.main([*argv, "--force"])
     assert not last_run(out)["run"] and not last_run(out)["redo"]
+    # One more uvd row on the joint state: only its decompositions run, and the scores are redone.
+    part = table.main([*argv, "--force", "--uvd-views", "state"])["datasets"]["g1"]
+    assert [r["method"] for r in part["rows"]][4:6] == ["uvd", "uvd_state"]
+    assert last_run(out)["run"] == ["uvd views state (unitree_g1_pick_bottle_30)"]
+    assert sorted(last_run(out)["redo"]) == ["evaluate against gt_hysteresis", "evaluate against gt_rule"]
+    done = json.loads((out / "g1" / "uvd_state_unitree_g1_pick_bottle_30.json").read_text())
+    assert done["config"]["views"] == ["state"]
