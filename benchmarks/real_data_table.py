@@ -77,11 +77,9 @@ def run_rlbench(args: argparse.Namespace, steps: Steps, folder: Path) -> dict[st
         return steps.cli(sec, label, out, ["decompose", *data, "--include", *include, *extra, "--out", out], deps)
 
     rule = decompose("rule", folder / "rule.json", names, "--decomposer", "expert")
-    preds = [("rule", rule), ("uvd", decompose("uvd", folder / "uvd.json", names, "--decomposer", "uvd",
-                                               *encoder_args(args)))]
-    for views in args.uvd_views or []:
-        preds.append((f"uvd_{views}", decompose(f"uvd views {views}", folder / f"uvd_{views}.json", names,
-                                               "--decomposer", "uvd", *encoder_args(args), "--views", *views.split())))
+    preds = [("rule", rule)]
+    preds += [(label, decompose(step, folder / f"{label}.json", names, "--decomposer", "uvd", *encoder_args(args), *extra))
+              for label, step, _, extra in uvd_runs(args)]
     n_of: dict[str, int] = {}
     for name in names:
         db = folder / f"db_{name}"
@@ -99,7 +97,7 @@ def run_rlbench(args: argparse.Namespace, steps: Steps, folder: Path) -> dict[st
     scores = {"rule": evaluate(args, steps, sec, folder / "eval_rule.json", preds, rule)}
     counts = {n: sum(v == n for v in n_of.values()) for n in sorted(set(n_of.values()))}
     ns = f"{n_of[names[0]]} in every fold" if len(counts) == 1 else ", ".join(f"{n} in {k} folds" for n, k in counts.items())
-    rows = [("rdd", "rdd"), ("rdd_ood", "rdd_ood"), ("uvd", "uvd"), *uvd_rows(args),
+    rows = [("rdd", "rdd"), ("rdd_ood", "rdd_ood"), *[(label, name) for label, _, name, _ in uvd_runs(args)],
             ("uniform", f"uniform (n = {ns})"), ("rule", "rule (the ground truth itself)")]
     return {"title": f"RLBench open_drawer, leave one episode out ({len(names)} folds)",
             "about": (f"Each fold's database: the other {len(names) - 1} episodes of `{root}`, segmented by the "
@@ -160,10 +158,8 @@ def run_g1(args: argparse.Namespace, steps: Steps, folder: Path) -> dict[str, An
                action=lambda: write_records(gts["hysteresis"], [r for r in read_records(hands) if r["episode"] in names],
                                             {"annotation": "hysteresis", "from": str(hands)}))
     preds = [("rule", f) for f in rule]
-    preds += [("uvd", f) for f in decompose("uvd", "uvd", "--decomposer", "uvd", *encoder_args(args))]
-    for views in args.uvd_views or []:
-        preds += [(f"uvd_{views}", f) for f in decompose(f"uvd views {views}", f"uvd_{views}", "--decomposer", "uvd",
-                                                        *encoder_args(args), "--views", *views.split())]
+    for label, step, _, extra in uvd_runs(args):
+        preds += [(label, f) for f in decompose(step, label, "--decomposer", "uvd", *encoder_args(args), *extra)]
     n_of: dict[str, int] = {}
     for ann, source, segments in (("rule", train_root, "expert"), ("hysteresis", copies / train_root.name, "subtasks")):
         db = folder / f"db_{ann}"
@@ -181,7 +177,7 @@ def run_g1(args: argparse.Namespace, steps: Steps, folder: Path) -> dict[str, An
                                                            "uniform", "--option", f"n_segments={n}")]
     scores = {ann: evaluate(args, steps, sec, folder / f"eval_{ann}.json", preds, gt) for ann, gt in gts.items()}
     rows = [(f"{m}@{a}", f"{m} (db: {a})") for m in ("rdd", "rdd_ood") for a in gts]
-    rows += [("uvd", "uvd"), *uvd_rows(args)]
+    rows += [(label, name) for label, _, name, _ in uvd_runs(args)]
     rows += [(f"uniform_n{n}", f"uniform (n = {n}: median of the training {' and '.join(a for a in n_of if n_of[a] == n)} "
                                "annotation)") for n in sorted(set(n_of.values()))]
     rows += [("rule", "rule (`--decomposer expert`)")]
@@ -194,9 +190,11 @@ def run_g1(args: argparse.Namespace, steps: Steps, folder: Path) -> dict[str, An
             "annotations": list(gts), "rows": table_rows(rows, scores), "commands": steps.commands.get(sec, [])}
 
 
-def uvd_rows(args: argparse.Namespace) -> list[tuple[str, str]]:
-    """The table rows of the extra uvd runs of ``--uvd-views``."""
-    return [(f"uvd_{views}", f"uvd (`--views {views}`)") for views in args.uvd_views or []]
+def uvd_runs(args: argparse.Namespace) -> list[tuple[str, str, str, list[str]]]:
+    """uvd on the default views, then on each ``--uvd-views``: (label and output stem, step name, row
+    name, extra decompose arguments)."""
+    return [("uvd", "uvd", "uvd", []), *[(f"uvd_{v}", f"uvd views {v}", f"uvd (`--views {v}`)", ["--views", *v.split()])
+                                          for v in args.uvd_views or []]]
 
 
 def encoder_args(args: argparse.Namespace, name: bool = True) -> list[str]:
