@@ -336,7 +336,8 @@ def _resolve(stage_dir: Path) -> Path:
     return p if p.is_absolute() else stage_dir / p
 
 
-def load_planner(planner_cfg: DictConfig, base_stage: Path, finetune_stage: Path | None):
-    """The planner: the base, plus the LoRA adapter when finetuned."""
+def load_planner(planner_cfg: DictConfig, base_stage: Path, finetune_stage: Path | None, describer=None):
+    """The planner: the base, plus the LoRA adapter when finetuned (``describer``: the loaded base,
+    which describes its scenes under ``describe_scene``)."""
     adapter = None if finetune_stage is None else _resolve(finetune_stage)
-    return learned_planner(planner_cfg).load(_resolve(base_stage), adapter)
+    return learned_planner(planner_cfg).load(_resolve(base_stage), adapter, describer=describer)

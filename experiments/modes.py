@@ -108,7 +108,9 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
         if not loaded:
             loaded["base"] = comp.load_planner(run.cfg.planner, base_dir, None)
             if adapter_dir is not None:
-                loaded["finetuned"] = comp.load_planner(run.cfg.planner, base_dir, adapter_dir)
+                # one base describes the scenes for both (same model, same greedy captions)
+                loaded["finetuned"] = comp.load_planner(run.cfg.planner, base_dir, adapter_dir,
+                                                        describer=loaded["base"])
         return loaded
 
     rows: list[dict[str, Any]] = []

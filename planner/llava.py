@@ -70,10 +70,10 @@ class LlavaPlanner:
         if self.config.describe_scene:
             examples = with_true_scenes(examples, episodes)
         stride = self.config.pretrain.caption_frame_stride
-        if stride:
-            examples += caption_examples(episodes, stride, self.config.view)
-            examples += caption_examples(vocabulary_episodes, stride, self.config.view, skip_unrecorded=True)
-        return pretrain_base(self.config, examples, out_dir,
+        captions = [] if not stride else [
+            *caption_examples(episodes, stride, self.config.view),
+            *caption_examples(vocabulary_episodes, stride, self.config.view, skip_unrecorded=True)]
+        return pretrain_base(self.config, examples, out_dir, captions=captions,
                              extra_corpus=list(extra_corpus),
                              slot_vocabulary=slot_vocabulary(vocabulary_episodes), progress=progress)
 
@@ -91,11 +91,15 @@ class LlavaPlanner:
             examples = Planner(self.config, base_dir).with_scenes(examples)
         return finetune_lora(self.config, base_dir, examples, out_dir, seed=seed, progress=progress)
 
-    def load(self, base_dir: Path, adapter_dir: Path | None = None):
-        """The trained planner (:class:`planner.planner.Planner`): the base, plus the adapter if given."""
+    def load(self, base_dir: Path, adapter_dir: Path | None = None, describer=None):
+        """The trained planner (:class:`planner.planner.Planner`): the base, plus the adapter if given.
+
+        ``describer``: the already loaded base of ``base_dir`` to describe scenes (``describe_scene``),
+        instead of loading a second copy.
+        """
         from planner.planner import Planner
 
-        return Planner(self.config, base_dir, adapter_dir)
+        return Planner(self.config, base_dir, adapter_dir, describer=describer)
 
 
 class TinyLlava(LlavaPlanner):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -15,17 +16,22 @@ from planner.dataset import PlannerCollator, PlannerExample, encode_prompt
 from planner.models import load_model
 from planner.prompts import clean_output
 
+CAPTION_MEMORY = 100_000  # captions a describer keeps (about 10 MB); past it, it starts afresh
+
 
 class Planner:
     """A base LLaVA planner, optionally with a LoRA adapter, queried greedily with bounded length."""
 
     def __init__(self, cfg: PlannerConfig, base_dir: str | Path, adapter_dir: str | Path | None = None,
-                 device: str | None = None):
+                 device: str | None = None, describer: Planner | None = None):
         self.cfg = cfg
         self.device = device or ("cuda" if torch.cuda.is_available() else "cpu")
-        # describe_scene: the base (not the adapter, which never trained on captions) describes
-        self._describer = (None if not cfg.describe_scene else
-                           self if adapter_dir is None else Planner(cfg, base_dir, None, self.device))
+        # describe_scene: the base (not the adapter, which never trained on captions) describes;
+        # ``describer``, that base already loaded, saves a second copy and its captions' time
+        if cfg.describe_scene and describer is not None and describer._describer is not describer:
+            raise ValueError("planner describer must be a base planner (no adapter) with describe_scene")
+        self._describer = (None if not cfg.describe_scene else self if adapter_dir is None
+                           else describer or Planner(cfg, base_dir, None, self.device))
         model, self.processor = load_model(base_dir, cfg, device=self.device)
         if adapter_dir is not None:
             from peft import PeftModel
@@ -39,6 +45,7 @@ class Planner:
         self._collate = PlannerCollator(tok.pad_token_id, padding_side="left")
         self._stop = [i for i in {tok.eos_token_id, tok.convert_tokens_to_ids("<|eot_id|>")}
                       if isinstance(i, int) and i >= 0 and i != tok.unk_token_id]
+        self._captions: dict[bytes, str] = {}  # describe()'s answers by image digest
         self.empty_outputs = 0  # how often a generation was empty and the fallback was used
 
     @torch.no_grad()
@@ -81,9 +88,20 @@ class Planner:
         return out
 
     def describe(self, images: Sequence[np.ndarray], batch_size: int = 16) -> list[str]:
-        """The model's scene caption of each image (``planner.captions``' question)."""
-        return self.predict([(img, "", None, CAPTION_QUESTION) for img in images], batch_size,
-                            max_new_tokens=CAPTION_MAX_TOKENS)
+        """The model's scene caption of each image (``planner.captions``' question); an image seen
+        before gets its caption back (greedy decoding gives the same text), so planners sharing
+        this describer caption each image once."""
+        keys = [hashlib.sha1(np.ascontiguousarray(img).tobytes() + str(np.shape(img)).encode()).digest()
+                for img in images]
+        todo = list(dict.fromkeys(k for k in keys if k not in self._captions))
+        if todo:
+            first = {k: img for k, img in zip(keys, images, strict=True)}
+            texts = self.predict([(first[k], "", None, CAPTION_QUESTION) for k in todo], batch_size,
+                                 max_new_tokens=CAPTION_MAX_TOKENS)
+            if len(self._captions) + len(todo) > CAPTION_MEMORY:
+                self._captions.clear()  # a long closed loop: bounded memory, recent images recaptioned
+            self._captions.update(zip(todo, texts, strict=True))
+        return [self._captions[k] for k in keys]
 
     def with_scenes(self, examples: Sequence[PlannerExample], batch_size: int = 16) -> list[PlannerExample]:
         """``examples`` whose prompts state this model's description of their images."""

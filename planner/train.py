@@ -238,9 +238,13 @@ def tokenizer_corpus(examples: Iterable[PlannerExample]) -> list[str]:
 
 
 def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_dir: str | Path,
-                  *, extra_corpus: Sequence[str] = (), slot_vocabulary: dict[str, list[str]] | None = None,
-                  progress: bool = True) -> Path:
+                  *, captions: Sequence[PlannerExample] = (), extra_corpus: Sequence[str] = (),
+                  slot_vocabulary: dict[str, list[str]] | None = None, progress: bool = True) -> Path:
     """The base planner directory: pretrained here into ``out_dir`` (tiny kinds) or the real checkpoint.
+
+    ``captions`` (scene-caption examples, :mod:`planner.captions`) are trained on with the planner
+    ``examples``; with a projector-alignment stage (smollm2_llava) that stage reads them alone, as
+    LLaVA's first stage aligns on image-caption pairs.
 
     ``slot_vocabulary`` (per task, the slot words of the corpus the tokenizer also saw) is saved with
     the base; LoRA finetuning renames slot words onto it (:func:`planner.augment.slot_swap`).
@@ -255,13 +259,15 @@ def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_di
         # language model, then projector and language model are tuned on the instructions
         for name, p in model.named_parameters():
             p.requires_grad_("multi_modal_projector" in name)
-        align = _train(model, processor, examples, cfg.align, "align projector", progress,
+        align = _train(model, processor, list(captions) or examples, cfg.align, "align projector", progress,
                        train_dtype=cfg.train_dtype)
         for name, p in model.named_parameters():
             p.requires_grad_("vision_tower" not in name)
+        examples = [*examples, *captions]
         log = {"align": align, **_train(model, processor, examples, cfg.pretrain,
                                         f"pretrain {cfg.kind}", progress, train_dtype=cfg.train_dtype)}
     else:
+        examples = [*examples, *captions]
         tokenizer = train_tokenizer(tokenizer_corpus(examples) + list(extra_corpus), cfg.vocab_size)
         processor = build_processor(cfg, tokenizer)
         model = build_tiny_model(cfg, tokenizer)

@@ -112,9 +112,16 @@ def test_smoke_scale_base_and_lora(smol_cache, monkeypatch, tmp_path):
                finetune=dict(lr=5e-4, epochs=2, batch_size=4), lora=dict(r=8, alpha=16, dropout=0.0))
     pre = training_examples(make_episodes(["pick_and_lift"], range(2), image_size=224), cfg.pretrain)
     tune = training_examples(make_episodes(["push_buttons"], [100], image_size=224), cfg.finetune)
-    base = pretrain_base(cfg, pre, tmp_path / "base", progress=False)
+    from planner.captions import CAPTION_QUESTION
+    from planner.dataset import PlannerExample
+
+    captions = [PlannerExample(image=e.image, goal="", previous_instruction=None, target="the red block is on the table.",
+                               task=e.task, episode=e.episode, frame=e.frame, question=CAPTION_QUESTION) for e in pre[:5]]
+    base = pretrain_base(cfg, pre, tmp_path / "base", captions=captions, progress=False)
     log = json.loads((base / "train_log.json").read_text())
     assert log["align"]["steps"] >= 1 and log["steps"] >= 1
+    # LLaVA's stages: the projector aligns on the captions alone, then both are tuned on everything
+    assert log["align"]["examples"] == len(captions) and log["examples"] == len(pre) + len(captions)
     adapter = finetune_lora(cfg, base, tune, tmp_path / "lora", seed=0, progress=False)
     losses = json.loads((adapter / "train_log.json").read_text())["epoch_losses"]
     assert losses[-1] < losses[0]
