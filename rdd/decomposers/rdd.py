@@ -161,7 +161,8 @@ class RDDDecomposer(Decomposer):
         if fv.shape[1] != self.database.frame_dim:
             raise ValueError(
                 f"frame vectors are {fv.shape[1]}-d but the database holds {self.database.frame_dim}-d "
-                "frame vectors (same encoder and views are required)"
+                "frame vectors: decompose with the encoder and views the database was built with, or rebuild "
+                "it (build-db) if those views changed since, as the state view did (joints + 2 values per hand)"
             )
         return fv
 

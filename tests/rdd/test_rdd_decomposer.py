@@ -252,7 +252,8 @@ def test_bad_arguments(world_db):
     with pytest.raises(TypeError, match="SubtaskDatabase"):
         RDDDecomposer(np.ones((3, 3)))
     dec = RDDDecomposer(db)
-    with pytest.raises(ValueError, match="128-d"):
+    # the message says what to do: match the database's encoder and views, or rebuild it
+    with pytest.raises(ValueError, match=r"7-d but the database holds 128-d.*rebuild it \(build-db\)"):
         dec.decompose_embeddings(np.ones((10, 7), dtype=np.float32))
     with pytest.raises(ValueError, match="shorter than min_len"):
         dec.decompose_embeddings(concat_views([np.ones((1, 64)), np.ones((1, 64))]))
