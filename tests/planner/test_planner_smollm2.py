@@ -109,7 +109,7 @@ def test_smoke_scale_base_and_lora(smol_cache, monkeypatch, tmp_path):
 
     monkeypatch.setenv("RDD_CACHE_DIR", str(smol_cache.parents[1]))
     cfg = _cfg(align=dict(lr=1e-3, epochs=1, batch_size=8), pretrain=dict(lr=5e-5, epochs=1, batch_size=8),
-               finetune=dict(lr=5e-4, epochs=2, batch_size=4), lora=dict(r=8, alpha=16, dropout=0.0))
+               finetune=dict(lr=2e-4, epochs=3, batch_size=4), lora=dict(r=8, alpha=16, dropout=0.0))
     pre = training_examples(make_episodes(["pick_and_lift"], range(2), image_size=224), cfg.pretrain)
     tune = training_examples(make_episodes(["push_buttons"], [100], image_size=224), cfg.finetune)
     from planner.captions import CAPTION_QUESTION
