@@ -102,6 +102,7 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
     if "decompositions" in info:
         results["decomposition"] = decomposition_block(info["decompositions"])
     n = int(run.cfg.planner_eval.episodes_per_task)
+    describes = bool(run.cfg.planner.get("describe_scene", False))
     loaded: dict[str, Any] = {}
 
     def planners() -> dict[str, Any]:
@@ -117,7 +118,8 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
     for task in run.eval_tasks:
         eps, test_key = run.expert_labels(task, "test", n)
         # rows: 2 since each row carries its goal (image-dependent boundaries are found from it)
-        spec = {"planner": planner_key, "base": info["base"], "test": test_key, "rows": 2}
+        spec = {"planner": planner_key, "base": info["base"], "test": test_key, "rows": 2,
+                **({"scenes": 1} if describes else {})}
 
         def build(tmp: Path, eps=eps) -> None:
             examples = comp.planner_test_examples(run.cfg.planner, eps)
@@ -128,6 +130,13 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
                 for row, p, h in zip(out, preds, hits, strict=True):
                     row[name] = p
                     row[f"{name}_hit"] = bool(h)
+            if describes:  # what the planners saw (captioned once, above) beside the simulator's truth
+                from planner.captions import with_true_scenes
+
+                said = planners()["base"].describe([e.image for e in examples])
+                true = [e.scene for e in with_true_scenes(examples, eps)]
+                for row, s, t in zip(out, said, true, strict=True):
+                    row.update(scene=s, scene_true=t)
             write_json_atomic(tmp / "boundaries.json", out)
 
         path, _ = run.cache.get_or_build("planner_eval", spec, build)

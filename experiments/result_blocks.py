@@ -86,4 +86,8 @@ def planner_eval_block(rows: list[dict[str, Any]], tasks: list[str], finetuned: 
         **{f"{n}_image_dependent": _rate(dep_rows, n) for n in names},
         "misses": [r for r in rows if not r.get("finetuned_hit", r["base_hit"])],
     }
+    if rows and all("scene" in r for r in rows):  # describe_scene: how often the stated scene was true
+        block["scene_exact_match"] = float(np.mean([r["scene"] == r["scene_true"] for r in rows]))
+        if dep_rows:
+            block["scene_image_dependent"] = float(np.mean([r["scene"] == r["scene_true"] for r in dep_rows]))
     return block

@@ -199,6 +199,12 @@ def test_image_dependent_boundaries_and_their_planner_column(tmp_path: Path):
     dep = block["per_task"]["stack"]["image_dependent"]
     assert dep["boundaries"] == 2 and dep["which"] == [("lift", "above the plate"), ("lift", "above the stack")]
     assert block["per_task"]["push"]["image_dependent"]["boundaries"] == 0
+    assert "scene_exact_match" not in block  # no planner described its scenes
+    said = ["plate empty", "plate empty", "x", "plate empty", "y"]  # the 2nd is wrong: a block is on it
+    true = ["plate empty", "block on plate", "x", "plate empty", "y"]
+    scened = [{**r, "scene": s, "scene_true": t} for r, s, t in zip(rows, said, true, strict=True)]
+    block_s = planner_eval_block(scened, ["stack", "push"], finetuned=True)
+    assert block_s["scene_exact_match"] == 0.8 and block_s["scene_image_dependent"] == 0.5
 
     data = {"format": RESULTS_FORMAT, "status": "ok", "seed": 0,
             "choices": {"experiment": "planner_eval", "decomposer": "expert"},
