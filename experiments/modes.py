@@ -119,7 +119,7 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
         eps, test_key = run.expert_labels(task, "test", n)
         # rows: 2 since each row carries its goal (image-dependent boundaries are found from it)
         spec = {"planner": planner_key, "base": info["base"], "test": test_key, "rows": 2,
-                **({"scenes": 1} if describes else {})}
+                **({"scenes": 2} if describes else {})}
 
         def build(tmp: Path, eps=eps) -> None:
             examples = comp.planner_test_examples(run.cfg.planner, eps)
@@ -132,9 +132,10 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
                     row[f"{name}_hit"] = bool(h)
             if describes:  # what the planners saw (captioned once, above) beside the simulator's truth
                 from planner.captions import with_true_scenes
+                from planner.prompts import clean_output
 
                 said = planners()["base"].describe([e.image for e in examples])
-                true = [e.scene for e in with_true_scenes(examples, eps)]
+                true = [clean_output(e.scene) for e in with_true_scenes(examples, eps)]  # as answers are read
                 for row, s, t in zip(out, said, true, strict=True):
                     row.update(scene=s, scene_true=t)
             write_json_atomic(tmp / "boundaries.json", out)
