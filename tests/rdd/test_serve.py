@@ -154,6 +154,15 @@ def test_bad_requests_name_the_field(setup, server, kind):
     assert bench.call(server.url + "/health")[0] == 200
 
 
+def test_a_window_shorter_than_min_len_is_a_bad_request(setup):
+    """No partition of 3 frames into segments of at least 5 exists: a 422 naming paths, not a 500."""
+    frames = setup["frames"][:3]
+    with bench.Server(setup["db"], *bench.ENCODER_ARGS, "--option", "min_len=5") as srv:
+        got, answer = bench.call(srv.url + "/decompose", {"paths": frames, "method": "rdd"})
+        assert got == 422 and answer["error"].startswith("paths:") and "min_len=5" in answer["error"], answer
+        assert bench.call(srv.url + "/decompose", {"paths": setup["frames"][:6], "method": "rdd"})[0] == 200
+
+
 def test_load_8_clients_x_25_requests(setup, capsys):
     """The load test on 20-frame windows with two workers: no error (the figures are printed, not asserted)."""
     windows = bench.windows_of(setup["frames"], 20)
