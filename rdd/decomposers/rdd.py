@@ -148,16 +148,23 @@ class RDDDecomposer(Decomposer):
         if self.encoder is None:
             raise ValueError("RDDDecomposer.decompose(episode) needs an encoder; "
                              "pass encoder= or call decompose_embeddings(frame_vectors)")
+        self._check_length(episode.num_frames, f"episode {episode.name!r}")  # before paying for encoding
         fv = episode_frame_vectors(episode, self.encoder, views=self.views, cache=self.cache,
                                    normalize=self.normalize_views)
         result = self.decompose_embeddings(fv)
         result.meta["episode"] = episode.name
         return result
 
+    def _check_length(self, num_frames: int, what: str) -> None:
+        if num_frames < self.min_len:  # no partition exists: say so before any work, naming the option
+            raise InputError(f"{what}: {num_frames} frame(s), shorter than min_len={self.min_len}, the shortest "
+                             "segment RDD cuts (the database's calibration or the min_len option)")
+
     def _check(self, frame_vectors: np.ndarray) -> np.ndarray:
         fv = np.asarray(frame_vectors, dtype=np.float32)
         if fv.ndim != 2:
             raise ValueError(f"frame_vectors must be a (T, D) array, got shape {fv.shape}")
+        self._check_length(fv.shape[0], "frame_vectors")
         if fv.shape[1] != self.database.frame_dim:
             raise ValueError(
                 f"frame vectors are {fv.shape[1]}-d but the database holds {self.database.frame_dim}-d "

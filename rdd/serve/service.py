@@ -143,15 +143,11 @@ class DecomposeService:
         """The official server's answer to one request: ``{"segments": ...}``, plus ``nn_list`` for rdd."""
         self.check_method(method)
         self.check_preprocessor(preprocessor)
-        shortest = getattr(self.decomposers[method], "min_len", None)
-        if shortest is not None and len(paths) < shortest:  # no partition exists: a client error, not a 500
-            raise RequestError(f"paths: {len(paths)} frame(s), but method {method!r} cuts segments of at least "
-                               f"min_len={shortest} frames (the database's calibration or the server's option)")
         episode, fields = self.episode(paths)
         try:
             with self.lock:
                 result = self.decomposers[method].decompose(episode)
-        except InputError as exc:  # a frame whose header read but whose pixels do not decode
+        except InputError as exc:  # a window shorter than min_len, a frame whose pixels do not decode
             field = next((f for p, f in fields.items() if p in str(exc)), "paths")
             raise RequestError(f"{field}: {exc}") from None
         finally:

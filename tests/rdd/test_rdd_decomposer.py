@@ -15,6 +15,7 @@ from rdd.decomposers.rdd import RDDDecomposer
 from rdd.demo import SyntheticWorld, build_synthetic_database, run_demo
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import concat_views, episode_frame_vectors
+from rdd.errors import InputError
 from rdd.milestones import uvd_previous_milestone
 
 CONF = Path(__file__).resolve().parents[2] / "conf" / "decomposer"
@@ -225,6 +226,26 @@ def test_decompose_episode_matches_embeddings_and_checks_encoder():
         RDDDecomposer(db, encoder=enc, views=("front",))
     with pytest.raises(ValueError, match="needs an encoder"):
         RDDDecomposer(db).decompose(test_ep)
+
+
+def test_episode_shorter_than_min_len_is_an_input_error_before_encoding():
+    """No partition of 3 frames into segments of at least 5: one line naming the episode and min_len,
+    and the encoder never runs (a long video is not decoded only to fail)."""
+    rng = np.random.default_rng(5)
+    enc = PixelMeanEncoder()
+    db = SubtaskDatabase.build(_two_segment_episodes(rng), None, enc)
+
+    class MustNotEncode(PixelMeanEncoder):
+        name = enc.name
+
+        def encode(self, images: np.ndarray) -> np.ndarray:
+            raise AssertionError("encoded an episode that no partition fits")
+
+    short = Episode(name="short", task="t", views={v: rng.integers(0, 256, (3, 8, 8, 3), dtype=np.uint8)
+                                                   for v in ("front", "wrist")})
+    with pytest.raises(InputError, match=r"^episode 'short': 3 frame\(s\), shorter than min_len=5,"):
+        RDDDecomposer(db, encoder=MustNotEncode(), min_len=5).decompose(short)
+    assert len(RDDDecomposer(db, encoder=enc, min_len=3).decompose(short).segments) == 1
 
 
 def test_raw_views_database_decomposes_with_raw_frame_vectors():
