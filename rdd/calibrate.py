@@ -36,6 +36,10 @@ DEFAULT_ALPHAS = (0.0, 0.1, 0.25, 0.5, 1.0, 2.0)
 DEFAULT_MIN_LENS = (2, 4)
 # min_len candidates as fractions of the shortest stored segment
 DEFAULT_MIN_LEN_FACTORS = (0.5, 1.0)
+# ... and of the median one: an annotation's flicker can store a sub-task far shorter than any real
+# one, and a min_len near it lets RDD cut such slivers too (G1, 20 episodes, held out in turn: the
+# best min_len was 24-32 frames, 0.45-0.6 of the median segment, where the shortest gave 6-8).
+DEFAULT_MIN_LEN_MEDIAN_FACTORS = (0.25, 0.5)
 # max_len candidates as multiples of the longest stored segment (None: unbounded).
 DEFAULT_MAX_LEN_FACTORS = (None, 1.25, 2.0)
 PAPER_POINT = {"alpha": 1.0, "min_len": 2, "max_len": None}
@@ -58,12 +62,14 @@ def sample_episodes(names: Sequence[str], k: int = DEFAULT_SAMPLE, seed: int = 0
 
 def default_grid(db: SubtaskDatabase) -> dict[str, list]:
     """The default grid; max_len values are multiples of the database's longest segment, and
-    min_len values beyond the fixed ones fractions of its shortest (no shorter sub-task was stored)."""
+    min_len values beyond the fixed ones fractions of its shortest and of its median segment."""
     longest = int(db.durations.max()) + 1
     shortest = int(db.durations.min()) + 1
+    median = float(np.median(db.durations)) + 1
     max_lens = sorted({None if f is None else max(2, math.ceil(f * longest))
                        for f in DEFAULT_MAX_LEN_FACTORS}, key=lambda v: (v is not None, v or 0))
-    min_lens = sorted(set(DEFAULT_MIN_LENS) | {max(2, int(f * shortest)) for f in DEFAULT_MIN_LEN_FACTORS})
+    min_lens = sorted(set(DEFAULT_MIN_LENS) | {max(2, int(f * shortest)) for f in DEFAULT_MIN_LEN_FACTORS}
+                      | {max(2, int(f * median)) for f in DEFAULT_MIN_LEN_MEDIAN_FACTORS})
     return {"alpha": list(DEFAULT_ALPHAS), "min_len": min_lens, "max_len": max_lens}
 
 

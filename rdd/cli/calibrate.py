@@ -62,7 +62,8 @@ def add_parser(sub) -> None:
     p = sub.add_parser("calibrate", help="rerun leave-one-episode-out calibration of a database")
     p.add_argument("--db", required=True, help="database directory (built without --no-calibrate)")
     p.add_argument("--alpha", help="comma-separated alpha grid (default 0,0.1,0.25,0.5,1,2)")
-    p.add_argument("--min-len", help="comma-separated min_len grid (default 2,4, half the shortest stored sub-task and the shortest)")
+    p.add_argument("--min-len", help="comma-separated min_len grid (default 2,4, half the shortest stored "
+                   "sub-task, the shortest, a quarter and half the median)")
     p.add_argument("--max-len", help="comma-separated max_len grid, 'none' = unbounded "
                    "(default none and 1.25x, 2x the longest stored segment)")
     p.add_argument("--sample", type=int, default=10, help="episodes held out in turn (default 10)")

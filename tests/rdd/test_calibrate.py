@@ -87,10 +87,11 @@ def test_bad_input(db_with_frames, caplog):
     assert len(sample_episodes(list("abcdef"), 3)) == 3 and sample_episodes(list("ab"), 10) == ["a", "b"]
 
 
-def test_default_grid_offers_min_lens_from_the_shortest_stored_segment():
+def test_default_grid_offers_min_lens_from_the_shortest_and_the_median_stored_segment():
     v = np.eye(3, dtype=np.float32)
-    # durations are end - 1 - start: segments of 18, 41 and 30 frames
+    # durations are end - 1 - start: segments of 18, 41 and 30 frames (median 30)
     db = SubtaskDatabase.from_arrays(v, v, [17, 40, 29])
     grid = default_grid(db)
-    assert grid["min_len"] == [2, 4, 9, 18]  # the fixed ones, half the shortest, the shortest
+    # the fixed ones; half the shortest (9), the shortest (18); a quarter (7) and half (15) the median
+    assert grid["min_len"] == [2, 4, 7, 9, 15, 18]
     assert grid["max_len"] == [None, 52, 82]  # 1.25 and 2 times the longest (41 frames), rounded up
