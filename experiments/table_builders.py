@@ -41,6 +41,14 @@ def _spread_note(n_seeds: int) -> str:
     return "; ± is the sample std over seeds." if n_seeds > 1 else "."
 
 
+def machines_note(runs: Sequence[RunRecord]) -> str:
+    """`` Run on: <CPU> (<vector width>).``, naming each CPU kind the runs report (trained stages
+    round differently on another one); empty for results that do not say."""
+    kinds = dict.fromkeys(f"{hw['cpu_model']} ({hw.get('torch_cpu_capability') or '?'})"
+                          for r in runs if (hw := r.data.get("hardware") or {}).get("cpu_model"))
+    return f" Run on: {'; '.join(kinds)}." if kinds else ""
+
+
 def _tasks_in_order(per_task_maps: Iterable[dict]) -> list[str]:
     """Task names in first-seen order over the runs' per-task maps."""
     return list(dict.fromkeys(task for m in per_task_maps for task in m))
@@ -99,6 +107,7 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
         "evaluation episode(s) per task and seed"
         + _spread_note(len(seeds))
         + (" Avg. Rank: methods ranked per task and seed (ties share the mean rank)." if ranked else "")
+        + machines_note(runs)
     )
     return Table(title, header, rows, bold, note)
 

@@ -234,3 +234,19 @@ def test_alpha_table_pairs_against_the_papers_alpha_however_it_was_written(tmp_p
     paired = md.split("paired differences")[1]
     row = next(ln for ln in paired.splitlines() if ln.startswith("| alpha=0 |"))
     assert row.split(" | ")[1] == "+50.0"
+
+
+def test_success_note_names_each_cpu_kind_its_runs_report(tmp_path: Path):
+    """Trained stages round differently on another CPU: the note says which made the table, once per
+    kind, and says nothing for results written before runs reported it."""
+    from experiments.results import RunRecord
+    from experiments.table_builders import machines_note
+
+    def rec(model, capability):
+        hw = {"cpu_count": 2} if model is None else {"cpu_model": model, "torch_cpu_capability": capability}
+        return RunRecord(tmp_path, {"hardware": hw})
+
+    assert machines_note([rec(None, None)]) == ""
+    xeon, epyc = rec("Intel Xeon", "AVX512"), rec("AMD EPYC", "AVX2")
+    assert machines_note([xeon, xeon, rec(None, None)]) == " Run on: Intel Xeon (AVX512)."
+    assert machines_note([xeon, epyc, xeon]) == " Run on: Intel Xeon (AVX512); AMD EPYC (AVX2)."
