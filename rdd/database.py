@@ -25,7 +25,7 @@ from rdd.database_store import (
     write_files,
 )
 from rdd.encoders.base import Encoder
-from rdd.encoders.embed import DEFAULT_VIEWS
+from rdd.encoders.embed import DEFAULT_VIEWS, STATE_VIEW, STATE_VIEW_VERSION
 from rdd.segments import Segment
 
 __all__ = ["DatabaseError", "SubtaskDatabase"]
@@ -159,6 +159,7 @@ class SubtaskDatabase:
             "weights_id": encoder.weights_id,
             "views": list(views),
             "normalize_views": bool(normalize_views),
+            **({"state_view": STATE_VIEW_VERSION} if STATE_VIEW in views else {}),
             **meta_lists,
         }
         db = cls.from_arrays(np.stack(begin), np.stack(end), np.asarray(durations), labels, meta)
@@ -234,7 +235,13 @@ class SubtaskDatabase:
 
     def check_compatible(self, encoder: Encoder | None = None, views: Sequence[str] | None = None,
                          where: str = "database") -> None:
-        """Raise DatabaseError when ``encoder``/``views`` differ from those that built the database."""
+        """Raise DatabaseError when ``encoder``/``views`` differ from those that built the database,
+        or its state view is of another version than this code computes."""
+        version = self.meta.get("state_view", 1)
+        if STATE_VIEW in (self.meta.get("views") or []) and version != STATE_VIEW_VERSION:
+            raise DatabaseError(f"{where} holds view {STATE_VIEW!r} of version {version}, but this code computes "
+                                f"version {STATE_VIEW_VERSION} (a hand's opening is the median of its finger "
+                                "dims): rebuild it with build-db")
         if encoder is not None and self.meta.get("encoder") is not None:
             if encoder.name != self.meta["encoder"] or encoder.weights_id != self.meta.get("weights_id"):
                 raise DatabaseError(

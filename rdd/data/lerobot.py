@@ -23,7 +23,14 @@ from rdd.data.episode import Episode
 from rdd.data.lerobot_checks import check_finite, check_length, check_timestamps
 from rdd.data.lerobot_dataset import LeRobotDataset, _column, _need
 from rdd.data.lerobot_language import read_subtasks
-from rdd.data.lerobot_layout import arm_sides, feature_names, hand_flags, hand_levels, infer_layout
+from rdd.data.lerobot_layout import (
+    arm_sides,
+    feature_names,
+    finger_levels,
+    hand_flags,
+    hand_levels,
+    infer_layout,
+)
 from rdd.data.lerobot_video import VideoFrames
 
 log = logging.getLogger(__name__)
@@ -177,7 +184,7 @@ def load_episode(
             joint_velocities = np.zeros_like(joint_positions)
     elif joint_indices is not None:
         raise KeyError(f"{data_path}: state column {state_key!r} is missing")
-    gripper = None
+    gripper = openings = None
     groups: list[list[int]] | None = None
     sides: list[str] = []
     if gripper_indices is not None:
@@ -209,6 +216,9 @@ def load_episode(
         values = _column(table, source_key, data_path).astype(np.float64)
         check_finite(values, where, source_key)
         levels = hand_levels(values, groups, f"{data_path}:{source_key}")
+        names = feature_names(ds.info, source_key)
+        openings = finger_levels(values, groups, names if names and len(names) == values.reshape(n, -1).shape[1]
+                                 else None, f"{data_path}:{source_key}")
         flags = hand_flags(values, groups,
                            float(gripper_threshold), float(gripper_hysteresis), bool(gripper_open_above),
                            f"{data_path}:{source_key}")
@@ -252,6 +262,8 @@ def load_episode(
             # Per-hand levels (T, H; the order of gripper.indices) and each arm's columns of
             # joint_positions: the signals the expert rule's hand events and the signals labeler read.
             "hand_levels": levels,
+            # Per-hand opening, the median of the finger dims (the state view's hand signal).
+            "hand_openings": openings,
             "arm_sides": arms,
         },
     )

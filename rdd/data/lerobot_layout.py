@@ -14,6 +14,8 @@ import numpy as np
 
 GRIPPER_WORDS = ("gripper", "hand", "finger")
 SIDES = ("left", "right")
+# A dexterous hand's four fingers by name (not the thumb, whose bend and rotation do not open it).
+FINGER_WORDS = ("pinky", "ring", "middle", "index")
 
 
 def feature_names(info: dict[str, Any], key: str) -> list[str] | None:
@@ -61,6 +63,21 @@ def hand_levels(values: np.ndarray, groups: Sequence[Sequence[int]], where: str)
         if bad:
             raise ValueError(f"reader option gripper_indices {bad} out of range for {where} with {v.shape[1]} dims")
         levels[:, h] = v[:, list(group)].mean(axis=1)
+    return levels
+
+
+def finger_levels(values: np.ndarray, groups: Sequence[Sequence[int]], names: Sequence[str] | None,
+                  where: str) -> np.ndarray:
+    """(T, H) opening of each hand: the median of its dims named for a finger (pinky, ring, middle,
+    index), robust to the thumb and to one finger out of step; a hand without such names (a
+    parallel gripper, unnamed dims) keeps its level, the mean of its dims."""
+    levels = hand_levels(values, groups, where)
+    v = values if values.ndim == 2 else values[:, None]
+    for h, group in enumerate(groups):
+        fingers = [i for i in group if names is not None and 0 <= i < len(names)
+                   and any(w in names[i].lower() for w in FINGER_WORDS)]
+        if fingers:
+            levels[:, h] = np.median(v[:, fingers], axis=1)
     return levels
 
 

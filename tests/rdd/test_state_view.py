@@ -77,6 +77,46 @@ def test_state_view_adds_the_hands_or_the_gripper():
     np.testing.assert_allclose(with_flag[:, 3], (grip - STATE_LEVEL_CENTRE) * STATE_LEVEL_SPAN)
 
 
+def test_hand_opening_is_the_median_of_the_finger_dims_and_wins_over_the_level():
+    from rdd.data.lerobot_layout import finger_levels
+
+    t = np.arange(30.0)
+    # one hand: four fingers close at frames 10-13 (one of them late, at 25), the thumb bends early
+    fingers = np.stack([(t < c).astype(float) for c in (10, 11, 12, 25)], axis=1)
+    thumb = np.stack([(t < 3).astype(float), np.full(30, 0.3)], axis=1)
+    values = np.concatenate([np.zeros((30, 2)), fingers, thumb], axis=1)  # two arm dims first
+    names = ["arm_a", "arm_b", "R_pinky", "R_ring", "R_middle", "R_index", "R_thumb_bend", "R_thumb_rot"]
+    opening = finger_levels(values, [[2, 3, 4, 5, 6, 7]], names, "x")
+    np.testing.assert_allclose(opening[:, 0], np.median(fingers, axis=1))  # closed from frame 12 (median)
+    mean = finger_levels(values, [[2, 3, 4, 5, 6, 7]], None, "x")  # no names: the mean of the hand's dims
+    np.testing.assert_allclose(mean[:, 0], values[:, 2:].mean(axis=1))
+    q = np.stack([np.sin(t / 6), np.cos(t / 4)], axis=1)
+    ep = Episode(name="h", views={}, joint_positions=q, meta={"hand_levels": mean, "hand_openings": opening})
+    np.testing.assert_allclose(state_vectors(ep)[:, 3], (opening[:, 0] - STATE_LEVEL_CENTRE) * STATE_LEVEL_SPAN)
+
+
+def test_a_state_database_of_another_view_version_is_refused(data, tmp_path, capsys):
+    """A database whose state view was computed another way (version 1: a hand's mean level) would be
+    matched against vectors it never held: loading it names the version and says to rebuild."""
+    from rdd.database_store import seal
+
+    common = ["--format", "native", "--data", str(data), "--encoder", "pixels", "--encoder-option", "size=4",
+              "--no-cache"]
+    assert main(["build-db", *common, "--views", "state", "--exclude", "ep4", "--no-calibrate",
+                 "--out", str(tmp_path / "db")]) == 0
+    manifest = json.loads((tmp_path / "db" / "manifest.json").read_text())
+    assert manifest["extra"]["state_view"] == 2
+    capsys.readouterr()
+    del manifest["extra"]["state_view"]  # as written before the version existed
+    (tmp_path / "db" / "manifest.json").write_text(json.dumps(seal(manifest)))
+    code = main(["decompose", *common, "--include", "ep4", "--decomposer", "rdd", "--db", str(tmp_path / "db"),
+                 "--out", str(tmp_path / "rdd.json")])
+    err = capsys.readouterr().err.strip()
+    assert code != 0 and len(err.splitlines()) == 1
+    assert "view 'state' of version 1" in err and "rebuild it with build-db" in err
+    assert not (tmp_path / "rdd.json").exists()
+
+
 def test_rdd_on_the_state_view_finds_the_joint_sub_tasks(data, tmp_path):
     common = ["--format", "native", "--data", str(data), "--encoder", "pixels", "--encoder-option", "size=4",
               "--no-cache"]
