@@ -217,8 +217,8 @@ def load_episode(
         check_finite(values, where, source_key)
         levels = hand_levels(values, groups, f"{data_path}:{source_key}")
         names = feature_names(ds.info, source_key)
-        openings = finger_levels(values, groups, names if names and len(names) == values.reshape(n, -1).shape[1]
-                                 else None, f"{data_path}:{source_key}")
+        aligned = names is not None and len(names) == values.reshape(n, -1).shape[1]
+        openings = finger_levels(values, groups, names if aligned else None, levels)
         flags = hand_flags(values, groups,
                            float(gripper_threshold), float(gripper_hysteresis), bool(gripper_open_above),
                            f"{data_path}:{source_key}")

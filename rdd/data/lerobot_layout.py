@@ -67,18 +67,19 @@ def hand_levels(values: np.ndarray, groups: Sequence[Sequence[int]], where: str)
 
 
 def finger_levels(values: np.ndarray, groups: Sequence[Sequence[int]], names: Sequence[str] | None,
-                  where: str) -> np.ndarray:
+                  levels: np.ndarray) -> np.ndarray:
     """(T, H) opening of each hand: the median of its dims named for a finger (pinky, ring, middle,
     index), robust to the thumb and to one finger out of step; a hand without such names (a
-    parallel gripper, unnamed dims) keeps its level, the mean of its dims."""
-    levels = hand_levels(values, groups, where)
+    parallel gripper, unnamed dims) keeps its ``levels`` column (:func:`hand_levels`)."""
+    openings = np.array(levels, dtype=np.float64)
+    if names is None:
+        return openings
     v = values if values.ndim == 2 else values[:, None]
     for h, group in enumerate(groups):
-        fingers = [i for i in group if names is not None and 0 <= i < len(names)
-                   and any(w in names[i].lower() for w in FINGER_WORDS)]
+        fingers = [i for i in group if 0 <= i < len(names) and any(w in names[i].lower() for w in FINGER_WORDS)]
         if fingers:
-            levels[:, h] = np.median(v[:, fingers], axis=1)
-    return levels
+            openings[:, h] = np.median(v[:, fingers], axis=1)
+    return openings
 
 
 def hand_flags(

@@ -38,8 +38,9 @@ def state_vectors(episode: Episode) -> np.ndarray:
     opening, each dimension standardised over the episode, then each opening in its own units.
 
     The hands come from ``meta["hand_openings"]`` (a LeRobot reader's per-hand median of the finger
-    dims), else ``meta["hand_levels"]`` (the mean of a hand's dims), else the gripper flag. Each dimension minus its mean, over its standard deviation, so a hand's 0..1 and an arm's
-    radians count alike; the deviation is floored at ``STATE_STD_FLOOR`` of the largest one's, so a
+    dims), else ``meta["hand_levels"]`` (the mean of a hand's dims), else the gripper flag. Each
+    dimension minus its mean, over its standard deviation, so a hand's 0..1 and an arm's radians count
+    alike; the deviation is floored at ``STATE_STD_FLOOR`` of the largest one's, so a
     dimension that barely moves (a hand at rest, sensor noise) stays small instead of being scaled up.
     The last H columns are ``(level - STATE_LEVEL_CENTRE) * STATE_LEVEL_SPAN``, the same in every episode.
     """

@@ -78,7 +78,7 @@ def test_state_view_adds_the_hands_or_the_gripper():
 
 
 def test_hand_opening_is_the_median_of_the_finger_dims_and_wins_over_the_level():
-    from rdd.data.lerobot_layout import finger_levels
+    from rdd.data.lerobot_layout import finger_levels, hand_levels
 
     t = np.arange(30.0)
     # one hand: four fingers close at frames 10-13 (one of them late, at 25), the thumb bends early
@@ -86,9 +86,10 @@ def test_hand_opening_is_the_median_of_the_finger_dims_and_wins_over_the_level()
     thumb = np.stack([(t < 3).astype(float), np.full(30, 0.3)], axis=1)
     values = np.concatenate([np.zeros((30, 2)), fingers, thumb], axis=1)  # two arm dims first
     names = ["arm_a", "arm_b", "R_pinky", "R_ring", "R_middle", "R_index", "R_thumb_bend", "R_thumb_rot"]
-    opening = finger_levels(values, [[2, 3, 4, 5, 6, 7]], names, "x")
+    levels = hand_levels(values, [[2, 3, 4, 5, 6, 7]], "x")
+    opening = finger_levels(values, [[2, 3, 4, 5, 6, 7]], names, levels)
     np.testing.assert_allclose(opening[:, 0], np.median(fingers, axis=1))  # closed from frame 12 (median)
-    mean = finger_levels(values, [[2, 3, 4, 5, 6, 7]], None, "x")  # no names: the mean of the hand's dims
+    mean = finger_levels(values, [[2, 3, 4, 5, 6, 7]], None, levels)  # no names: the mean of the hand's dims
     np.testing.assert_allclose(mean[:, 0], values[:, 2:].mean(axis=1))
     q = np.stack([np.sin(t / 6), np.cos(t / 4)], axis=1)
     ep = Episode(name="h", views={}, joint_positions=q, meta={"hand_levels": mean, "hand_openings": opening})
