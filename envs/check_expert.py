@@ -1,4 +1,5 @@
-"""Measure the scripted experts: success rate, keyframe-rule agreement and demo length per task.
+"""Measure the scripted experts: success rate, keyframe-rule agreement, the privileged labeler's
+agreement with the expert's instructions, and demo length per task.
 
     python -m envs.check_expert --seeds 50 [--tasks a b] [--render] [--start 0] [--out table.md]
 
@@ -10,19 +11,23 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections import Counter
 from pathlib import Path
 
 from rdd.atomic import write_text_atomic
 
 
 def check_task(task: str, seeds, render: bool = False) -> dict:
-    """Success count, keyframe-rule agreement count and frame counts over ``seeds``."""
+    """Success count, keyframe-rule agreement count, labels equal to the expert's instructions
+    (over the successful demos' segments) and frame counts over ``seeds``."""
     from envs.expert import run_expert
+    from envs.labeler import PrivilegedLabeler
     from rdd.decomposers.expert import keypoint_discovery
     from rdd.segments import segments_to_keyframes
 
-    ok = agree = 0
-    frames, failures = [], []
+    ok = agree = labels_equal = segments = 0
+    frames, failures, mismatches = [], [], Counter()
+    labeler = PrivilegedLabeler()
     start = time.perf_counter()
     for seed in seeds:
         res = run_expert(task, seed, render=render)
@@ -32,9 +37,17 @@ def check_task(task: str, seeds, render: bool = False) -> dict:
         frames.append(ep.num_frames)
         if not res.success:
             failures.append((seed, res.failure))
+            continue
+        ep.meta["privileged"] = res.privileged
+        for said, label in zip(ep.instructions, labeler.label_all(ep, ep.segments)):
+            segments += 1
+            labels_equal += said == label
+            if said != label:
+                mismatches[(said, label)] += 1
     n = len(list(seeds))
     return {"task": task, "n": n, "success": ok, "keyframes_agree": agree, "min_frames": min(frames),
             "mean_frames": sum(frames) / n, "max_frames": max(frames), "failures": failures,
+            "labels_equal": labels_equal, "segments": segments, "label_mismatches": mismatches,
             "seconds": time.perf_counter() - start}
 
 
@@ -50,16 +63,19 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="also write the table to this file")
     args = ap.parse_args(argv)
     seeds = range(args.start, args.start + args.seeds)
-    lines = ["| task | pretraining | success | keyframe rule = waypoints | frames min/mean/max | s/demo |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| task | pretraining | success | keyframe rule = waypoints | label = instruction "
+             "| frames min/mean/max | s/demo |", "|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     for task in args.tasks or task_names():
         r = check_task(task, seeds, args.render)
         line = (f"| {task} | {'yes' if TASKS[task].pretraining else 'no'} | {r['success']}/{r['n']} "
                 f"({100 * r['success'] / r['n']:.0f}%) | {r['keyframes_agree']}/{r['n']} | "
+                f"{r['labels_equal']}/{r['segments']} | "
                 f"{r['min_frames']}/{r['mean_frames']:.0f}/{r['max_frames']} | {r['seconds'] / r['n']:.2f} |")
         lines.append(line)
         print(line + (f"  failures: {r['failures']}" if r["failures"] else ""), flush=True)
+        for (said, label), count in sorted(r["label_mismatches"].items()):
+            print(f"    {count} x expert '{said}', labeler '{label}'", flush=True)
     if args.out:
         write_text_atomic(Path(args.out), "\n".join(lines) + "\n")
     return 0
