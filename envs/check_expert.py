@@ -25,7 +25,7 @@ def check_task(task: str, seeds, render: bool = False) -> dict:
     from rdd.decomposers.expert import keypoint_discovery
     from rdd.segments import segments_to_keyframes
 
-    ok = agree = labels_equal = segments = 0
+    ok = agree = segments = 0
     frames, failures, mismatches = [], [], Counter()
     labeler = PrivilegedLabeler()
     start = time.perf_counter()
@@ -39,15 +39,13 @@ def check_task(task: str, seeds, render: bool = False) -> dict:
             failures.append((seed, res.failure))
             continue
         ep.meta["privileged"] = res.privileged
-        for said, label in zip(ep.instructions, labeler.label_all(ep, ep.segments)):
-            segments += 1
-            labels_equal += said == label
-            if said != label:
-                mismatches[(said, label)] += 1
+        segments += len(ep.segments)
+        labels = labeler.label_all(ep, ep.segments)
+        mismatches.update(pair for pair in zip(ep.instructions, labels, strict=True) if pair[0] != pair[1])
     n = len(list(seeds))
     return {"task": task, "n": n, "success": ok, "keyframes_agree": agree, "min_frames": min(frames),
             "mean_frames": sum(frames) / n, "max_frames": max(frames), "failures": failures,
-            "labels_equal": labels_equal, "segments": segments, "label_mismatches": mismatches,
+            "labels_equal": segments - mismatches.total(), "segments": segments, "label_mismatches": mismatches,
             "seconds": time.perf_counter() - start}
 
 

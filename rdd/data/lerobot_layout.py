@@ -15,6 +15,9 @@ import numpy as np
 GRIPPER_WORDS = ("gripper", "hand", "finger")
 SIDES = ("left", "right")
 # A dexterous hand's four fingers by name (not the thumb, whose bend and rotation do not open it).
+# The state view's opening is their median, not the mean of all the hand's dims: 4-fold
+# cross-validation over G1 episodes 16-35 (databases of 15, calibrated), boundary F1 at +-5 against
+# the hand rule 0.642 -> 0.670, the hysteresis annotation 0.572 -> 0.672.
 FINGER_WORDS = ("pinky", "ring", "middle", "index")
 
 

@@ -28,9 +28,6 @@ STATE_STD_FLOOR = 0.1
 # rule 0.73 -> 0.74, hysteresis 0.49 -> 0.66; weights 12-20 gave 0.71-0.76 and 0.64-0.71).
 STATE_LEVEL_CENTRE = 0.5
 STATE_LEVEL_SPAN = 16.0
-# A hand's opening is the median of its finger dims, not the mean of all its dims (the thumb's bend
-# and rotation move on their own): 4-fold cross-validation over G1 episodes 16-35 (databases of 15,
-# calibrated), boundary F1 at +-5 against the rule 0.642 -> 0.670, the hysteresis 0.572 -> 0.672.
 
 
 def state_vectors(episode: Episode) -> np.ndarray:

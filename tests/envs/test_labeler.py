@@ -110,13 +110,13 @@ def test_object_label():
         object_label({"type": "block"})
 
 
-def test_check_expert_counts_the_labelers_agreement():
+def test_check_expert_counts_the_labelers_agreement(episodes):
     """`python -m envs.check_expert` counts each segment whose label differs from the expert's
     words: put_item_in_drawer's turn above the cabinet is the one such segment per demo."""
     from envs.check_expert import check_task
 
     r = check_task("put_item_in_drawer", [3])
-    ep = run_expert("put_item_in_drawer", 3, render=False).episode
+    ep = episodes["put_item_in_drawer"]  # the same demo: CASES records seed 3
     assert r["segments"] == len(ep.instructions)
     assert r["labels_equal"] == r["segments"] - 1
     assert dict(r["label_mismatches"]) == {
