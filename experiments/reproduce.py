@@ -22,7 +22,6 @@ import contextlib
 import json
 import logging
 import os
-import platform
 import shlex
 import signal
 import subprocess
@@ -33,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from experiments.job import hardware, machine_kind
 from rdd.atomic import write_json_atomic, write_text_atomic
 
 log = logging.getLogger("experiments.reproduce")
@@ -170,7 +170,9 @@ def run_table(table: TablePlan, out: Path, cache_dir: Path | None, force: bool =
     table_dir.mkdir(parents=True, exist_ok=True)
     commit = _commit()  # the code the table starts from (a commit landing mid-run is not its code)
     earlier = _earlier_attempts(table_dir / ATTEMPTS_FILE, log_path)
-    attempt: dict[str, Any] = {"commit": commit, "started": time.time(), "seconds": None}
+    # trained stages round differently on another CPU: each call says which machine made it
+    machine = machine_kind(hardware()) or "unknown"
+    attempt: dict[str, Any] = {"commit": commit, "machine": machine, "started": time.time(), "seconds": None}
     write_json_atomic(table_dir / ATTEMPTS_FILE, [*earlier, attempt])
     start = time.perf_counter()
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")])}
@@ -192,7 +194,7 @@ def run_table(table: TablePlan, out: Path, cache_dir: Path | None, force: bool =
     seconds = time.perf_counter() - start
     _md, written = write_tables(table_dir, out / "tables" / table.name)
     record = {"table": table.name, "experiment": table.experiment, "commands": commands,
-              "commit": commit, "seconds": seconds,
+              "commit": commit, "machine": machine, "seconds": seconds,
               "seconds_all_calls": seconds + sum(a["seconds"] for a in earlier),
               "earlier_calls": earlier, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
               "outputs": [str(p.relative_to(out)) for p in written]}
@@ -247,14 +249,19 @@ def _all_calls(record: dict[str, Any]) -> float:
     return record.get("seconds_all_calls", record["seconds"])
 
 
+def _machines(record: dict[str, Any]) -> str:
+    """The machines of a table's calls, earlier ones first ("not recorded" for older drivers')."""
+    calls = [*record.get("earlier_calls", []), record]
+    return "; ".join(dict.fromkeys(c.get("machine") or "not recorded" for c in calls))
+
+
 def summary_markdown(plan: Plan, records: Sequence[dict[str, Any]], out: Path) -> str:
     """All tables of a plan in one Markdown page, each with its command and wall time."""
     lines = [f"# Reproduction at scale `{plan.scale}`", "",
-             f"Hardware: {os.cpu_count()} CPU cores, {platform.machine()}, Python {platform.python_version()}.",
-             "", "| table | experiment | wall time (min) | calls | commit |", "|---|---|--:|--:|---|"]
+             "| table | experiment | wall time (min) | calls | commit | machine |", "|---|---|--:|--:|---|---|"]
     for r in records:
         lines.append(f"| {r['table']} | {r['experiment']} | {_all_calls(r) / 60:.1f} | "
-                     f"{1 + len(r.get('earlier_calls', []))} | {r['commit'][:12]} |")
+                     f"{1 + len(r.get('earlier_calls', []))} | {r['commit'][:12]} | {_machines(r)} |")
     total = sum(_all_calls(r) for r in records)
     lines += ["", f"Total wall time of the runs: {total / 60:.1f} min.", ""]
     for table, r in zip(plan.tables, records, strict=True):

@@ -7,6 +7,7 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
+from experiments.job import machine_kind
 from experiments.results import RunRecord
 from experiments.stats import episode_outcomes, paired_difference
 from experiments.table_format import Table, _pm, mean_std
@@ -44,8 +45,7 @@ def _spread_note(n_seeds: int) -> str:
 def machines_note(runs: Sequence[RunRecord]) -> str:
     """`` Run on: <CPU> (<vector width>).``, naming each CPU kind the runs report (trained stages
     round differently on another one); empty for results that do not say."""
-    kinds = dict.fromkeys(f"{hw['cpu_model']} ({hw.get('torch_cpu_capability') or '?'})"
-                          for r in runs if (hw := r.data.get("hardware") or {}).get("cpu_model"))
+    kinds = dict.fromkeys(k for r in runs if (k := machine_kind(r.data.get("hardware"))))
     return f" Run on: {'; '.join(kinds)}." if kinds else ""
 
 

@@ -187,6 +187,8 @@ def test_a_resumed_table_counts_the_wall_time_of_every_call(tmp_path: Path, monk
         raise KeyboardInterrupt
 
     monkeypatch.setattr(reproduce, "_run_group", interrupted)
+    # the calls after the killed one (whose older driver recorded no machine) run on this "machine"
+    monkeypatch.setattr(reproduce, "hardware", lambda: {"cpu_model": "Test CPU", "torch_cpu_capability": "AVX2"})
     with pytest.raises(KeyboardInterrupt):
         reproduce.run_table(table, out, None)
     attempts = json.loads((table_dir / "ATTEMPTS.json").read_text())
@@ -204,3 +206,4 @@ def test_a_resumed_table_counts_the_wall_time_of_every_call(tmp_path: Path, monk
     assert json.loads((table_dir / "DONE.json").read_text())["seconds_all_calls"] == record["seconds_all_calls"]
     summary = reproduce.summary_markdown(reproduce.Plan("s", [table]), [record], out)
     assert f"| t | smoke | {record['seconds_all_calls'] / 60:.1f} | 3 |" in summary
+    assert summary.splitlines()[4].endswith("| not recorded; Test CPU (AVX2) |")
