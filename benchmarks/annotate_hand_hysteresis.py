@@ -1,6 +1,6 @@
 """A second annotation of LeRobot hand data, by a procedure independent of the project's expert rule.
 
-The expert rule (``rdd/hand_events.py``, ``--option rule=hands``) follows each hand's *level* (the
+The expert rule (``rdd/data/hand_events.py``, ``--option rule=hands``) follows each hand's *level* (the
 mean of all its dims) with a zigzag filter of relative size ``hand_delta``, cuts half way through
 each move and adds cuts at arm rests. This script annotates the same episodes another way, to have
 something to measure the rule against:
@@ -20,7 +20,7 @@ something to measure the rule against:
 
 Each segment is named by the change that ends it ("open the right hand"); the last one, which no
 change ends, "hold the right hand closed" (the state it ends in). The sub-tasks are written as
-LeRobot v3.0 ``language_persistent`` rows into a new copy of each dataset (``rdd.data.lerobot_write``;
+LeRobot v3.0 ``language_persistent`` rows into a new copy of each dataset (``rdd.data.lerobot.write``;
 the source is never written), read back with the reader ``build-db --segments subtasks`` uses, and
 saved as a ``decompose``-style JSON, so that ``python -m rdd evaluate --gt`` can score the rule
 against it. Only the parquet files are read; no video is decoded. Example:
@@ -42,9 +42,9 @@ from pathlib import Path
 import numpy as np
 
 from rdd.atomic import write_json_atomic
-from rdd.data.lerobot import episode_name, load_episodes
-from rdd.data.lerobot_dataset import LeRobotDataset
-from rdd.data.lerobot_write import write_subtasks
+from rdd.data.lerobot.dataset import LeRobotDataset
+from rdd.data.lerobot.reader import episode_name, load_episodes
+from rdd.data.lerobot.write import write_subtasks
 from rdd.errors import InputError
 
 OPEN_ABOVE, CLOSED_BELOW, MIN_DWELL_S = 0.75, 0.65, 0.2

@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from rdd.atomic import write_text_atomic
-from rdd.calibrate import calibrate, sample_episodes
+from rdd.core.calibrate import calibrate, sample_episodes
 from rdd.data.load import load_episodes
-from rdd.database import SubtaskDatabase
+from rdd.database.model import SubtaskDatabase
 from rdd.decomposers.expert import ExpertDecomposer
 from rdd.decomposers.uvd import UVDDecomposer
 from rdd.encoders import load_encoder

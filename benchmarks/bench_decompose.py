@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from rdd.atomic import atomic_file, write_text_atomic
-from rdd.database import SubtaskDatabase
+from rdd.database.model import SubtaskDatabase
 from rdd.decomposers.rdd import RDDDecomposer
 from rdd.encoders.embed import l2_normalize
 

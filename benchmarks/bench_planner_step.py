@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> dict:
     from planner.config import PlannerConfig
     from planner.dataset import PlannerCollator, encode_example
     from planner.models import build_pretrained_lm_model
-    from planner.train import _autocast, _lora_config, answer_loss, training_examples
+    from planner.train import answer_loss, autocast_context, lora_config, training_examples
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--batch", type=int, default=8)
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     def step(dtype: str):
         def run():
-            with _autocast(dtype):
+            with autocast_context(dtype):
                 answer_loss(model, batch).backward()
             model.zero_grad(set_to_none=True)
         return run
@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> dict:
     model.train()
     for dtype in ("float32", "bfloat16"):
         out[f"full_{dtype}"] = _seconds(step(dtype), args.repeats)
-    model = get_peft_model(model, _lora_config(cfg))
+    model = get_peft_model(model, lora_config(cfg))
     for dtype in ("float32", "bfloat16"):
         out[f"lora_{dtype}"] = _seconds(step(dtype), args.repeats)
     model = model.merge_and_unload().eval()

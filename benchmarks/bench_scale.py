@@ -1,7 +1,7 @@
 """Scale benchmark of ``python -m rdd decompose`` (issue 47.2) on a synthetic LeRobot v3.0 dataset.
 
 Writes ``--episodes`` episodes x ``--frames`` frames (one ``--size`` camera, ``--per-file`` episodes
-per data/video file; rdd.data.lerobot_synth), then runs the CLI as a subprocess, each run timed
+per data/video file; rdd.testing.lerobot_synth), then runs the CLI as a subprocess, each run timed
 (wall), its peak memory sampled (the summed RSS of its process tree, every 0.1 s):
 
 1. every episode with uvd and the fast ``pixels`` encoder, ``--workers`` processes: wall, images/s;
@@ -35,8 +35,8 @@ from pathlib import Path
 from typing import Any
 
 from rdd.atomic import write_json_atomic
-from rdd.data.lerobot import episode_name
-from rdd.data.lerobot_synth import write_synthetic_v30
+from rdd.data.lerobot.reader import episode_name
+from rdd.testing.lerobot_synth import write_synthetic_v30
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = os.sysconf("SC_PAGE_SIZE")

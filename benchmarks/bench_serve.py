@@ -42,7 +42,7 @@ def synthetic_setup(root: Path) -> dict[str, Any]:
 
     from rdd.cli import main
     from rdd.data.native import save_episode
-    from rdd.data.native_synth import colour_episode
+    from rdd.testing.native_synth import colour_episode
 
     data = root / "native"
     lengths = [(12, 15, 13), (14, 12, 15), (13, 14, 12), (15, 13, 14), (18, 16, 17)]

@@ -139,7 +139,7 @@ def segment_counts(db: Path) -> list[int]:
     """Sub-tasks per episode of a saved database (its training annotation)."""
     from collections import Counter
 
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
 
     return sorted(Counter(SubtaskDatabase.load(db).episodes).values())
 

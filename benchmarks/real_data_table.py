@@ -47,7 +47,7 @@ from real_data_steps import (  # noqa: E402  (the sibling module, found from thi
 
 from rdd.atomic import write_json_atomic, write_text_atomic  # noqa: E402
 from rdd.cli.components import DEFAULT_ENCODER  # noqa: E402
-from rdd.data.lerobot import episode_name, episode_names  # noqa: E402
+from rdd.data.lerobot.reader import episode_name, episode_names  # noqa: E402
 from rdd.errors import InputError  # noqa: E402
 
 OOD = ["--option", "mode=ood"]  # the RDD decomposer's OOD mode (paper Eq. 3.5)

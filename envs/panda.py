@@ -24,7 +24,7 @@ ARM_FORCES = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 FINGER_OPEN = 0.04
 
 
-def _lite_panda_urdf() -> str:
+def lite_panda_urdf() -> str:
     """Path of panda.urdf with its collision meshes also used as visuals.
 
     The stock visual meshes are ~1 MB each and make TinyRenderer ~15x slower; the collision

@@ -23,7 +23,7 @@ from envs.panda import (
     JOINT_LOWER,
     JOINT_UPPER,
     SIDE_SEEDS,
-    _lite_panda_urdf,
+    lite_panda_urdf,
 )
 from envs.poses import gripper_quat
 from envs.primitives import PrimitiveBuilders
@@ -60,7 +60,7 @@ class Scene(PrimitiveBuilders):
         self.p.setAdditionalSearchPath(pybullet_data.getDataPath())
         # A second client holding only the arm: inverse kinematics is seeded and checked there
         # without disturbing the simulated robot.
-        self.ik_robot = self.ik.loadURDF(_lite_panda_urdf(), basePosition=ROBOT_BASE, useFixedBase=True)
+        self.ik_robot = self.ik.loadURDF(lite_panda_urdf(), basePosition=ROBOT_BASE, useFixedBase=True)
         self._proj = self.p.computeProjectionMatrixFOV(
             self.camera.fov, self.camera.width / self.camera.height, self.camera.near, self.camera.far
         )
@@ -81,7 +81,7 @@ class Scene(PrimitiveBuilders):
         for sx in (-1, 1):
             for sy in (-1, 1):
                 self.add_box((0.03, 0.03, 0.37), (0.45 + sx * 0.5, sy * 0.6, -0.41), color="brown", mass=0)
-        self.robot = p.loadURDF(_lite_panda_urdf(), basePosition=ROBOT_BASE, useFixedBase=True)
+        self.robot = p.loadURDF(lite_panda_urdf(), basePosition=ROBOT_BASE, useFixedBase=True)
         for link in range(-1, 12):
             shade = (0.92, 0.92, 0.92, 1) if link not in (8, 9, 10) else (0.25, 0.25, 0.25, 1)
             if link in (1, 3, 5):

@@ -207,7 +207,7 @@ def build_database(episodes, encoder, views, cache, out: Path) -> None:
     Only each segment's boundary frames are encoded; :func:`calibrate_database` adds what the
     calibrated decomposer needs on top.
     """
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
 
     db = SubtaskDatabase.build(episodes, None, encoder, views=tuple(views), cache=cache)
     db.save(out / "database")
@@ -215,15 +215,15 @@ def build_database(episodes, encoder, views, cache, out: Path) -> None:
 
 def merge_databases(parts: Sequence[Path], out: Path) -> None:
     """The saved databases of ``parts`` (stage folders, e.g. one per task) as one, in that order."""
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
 
     SubtaskDatabase.concat([load_database(p) for p in parts]).save(out / "database")
 
 
 def calibrate_database(database_dir: Path, episodes, encoder, views, cache, out: Path) -> None:
     """The database in ``database_dir`` plus whole-episode vectors of a sample of its episodes and
-    their leave-one-episode-out calibration (``rdd.calibrate``), saved into ``out``."""
-    from rdd.calibrate import calibrate, sample_episodes
+    their leave-one-episode-out calibration (``rdd.core.calibrate``), saved into ``out``."""
+    from rdd.core.calibrate import calibrate, sample_episodes
     from rdd.encoders.embed import episode_frame_vectors
 
     db = load_database(database_dir)
@@ -242,7 +242,7 @@ def calibrate_database(database_dir: Path, episodes, encoder, views, cache, out:
 
 def load_database(path: Path):
     """A saved sub-task database."""
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
 
     return SubtaskDatabase.load(path / "database")
 

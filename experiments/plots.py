@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.results import RunRecord
-from experiments.table_builders import _latest_per_method_seed, _methods_in_order, speed_table
+from experiments.table_builders import latest_per_method_seed, methods_in_order, speed_table
 from experiments.table_format import mean_std
 
 
@@ -22,11 +22,11 @@ def plot_success(runs: Sequence[RunRecord], path: Path, title: str) -> bool:
     runs = [r for r in runs if r.status == "ok" and r.data.get("per_task")]
     if not runs:
         return False
-    methods = _methods_in_order(runs)
+    methods = methods_in_order(runs)
     tasks: list[str] = []
     for run in runs:
         tasks += [t for t in run.data["per_task"] if t not in tasks]
-    by_key = _latest_per_method_seed(runs)
+    by_key = latest_per_method_seed(runs)
     fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(tasks) + 2), 3.6))
     width = 0.8 / len(methods)
     for i, m in enumerate(methods):

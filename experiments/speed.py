@@ -28,7 +28,7 @@ def measure_speed(cfg: DictConfig) -> dict[str, Any]:
     """Wall time of RDD on synthetic demonstrations of each length in ``cfg.speed.frames``."""
     from hydra.utils import instantiate
 
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
 
     sp = cfg.speed
     rng = np.random.default_rng(int(cfg.seed))

@@ -10,7 +10,7 @@ import numpy as np
 from experiments.job import machine_kind
 from experiments.results import RunRecord
 from experiments.stats import episode_outcomes, paired_difference
-from experiments.table_format import Table, _pm, mean_std
+from experiments.table_format import Table, mean_std, plus_minus
 
 
 def average_ranks(scores: Sequence[float]) -> list[float]:
@@ -21,7 +21,7 @@ def average_ranks(scores: Sequence[float]) -> list[float]:
     return rankdata(-np.asarray(scores, dtype=np.float64), method="average").tolist()
 
 
-def _methods_in_order(runs: Sequence[RunRecord]) -> list[str]:
+def methods_in_order(runs: Sequence[RunRecord]) -> list[str]:
     seen: list[str] = []
     for run in runs:
         if run.method not in seen:
@@ -29,7 +29,7 @@ def _methods_in_order(runs: Sequence[RunRecord]) -> list[str]:
     return seen
 
 
-def _latest_per_method_seed(runs: Sequence[RunRecord]) -> dict[tuple[str, int], RunRecord]:
+def latest_per_method_seed(runs: Sequence[RunRecord]) -> dict[tuple[str, int], RunRecord]:
     """One run per (method, seed); a later path (rerun) replaces an earlier one."""
     out: dict[tuple[str, int], RunRecord] = {}
     for run in runs:
@@ -59,8 +59,8 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     runs = [r for r in runs if r.status == "ok" and r.data.get("per_task")]
     if not runs:
         return None
-    methods = _methods_in_order(runs)
-    by_key = _latest_per_method_seed(runs)
+    methods = methods_in_order(runs)
+    by_key = latest_per_method_seed(runs)
     tasks = _tasks_in_order(run.data["per_task"] for run in runs)
     seeds = sorted({seed for _, seed in by_key})
     # succ[method][seed][task]
@@ -87,10 +87,10 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
         r_mean, r_std = mean_std(per_seed_rank)
         avg_means.append(a_mean)
         rank_means.append(r_mean)
-        row = [m, _pm(a_mean, a_std), *([_pm(r_mean, r_std, scale=1.0, digits=2)] if ranked else [])]
+        row = [m, plus_minus(a_mean, a_std), *([plus_minus(r_mean, r_std, scale=1.0, digits=2)] if ranked else [])]
         for task in tasks:
             vals = [succ[m][s][task] for s in succ[m] if task in succ[m][s]]
-            row.append(_pm(*mean_std(vals)))
+            row.append(plus_minus(*mean_std(vals)))
         rows.append(row)
     bold = set()
     if rows:
@@ -114,8 +114,8 @@ def success_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
 def paired_table(title: str, runs: Sequence[RunRecord], reference: str, n_boot: int = 10_000) -> Table | None:
     """Each method minus ``reference`` in average success, paired by episode, with 95% bootstrap CIs."""
     runs = [r for r in runs if r.status == "ok" and r.data.get("episodes")]
-    by_key = _latest_per_method_seed(runs)
-    methods = _methods_in_order(runs)
+    by_key = latest_per_method_seed(runs)
+    methods = methods_in_order(runs)
     if reference not in methods or len(methods) < 2:
         return None
 
@@ -144,8 +144,8 @@ def miou_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     runs = [r for r in runs if r.status == "ok" and (r.data.get("decomposition") or {}).get("per_task")]
     if not runs:
         return None
-    methods = _methods_in_order(runs)
-    by_key = _latest_per_method_seed(runs)
+    methods = methods_in_order(runs)
+    by_key = latest_per_method_seed(runs)
     tasks = _tasks_in_order(run.data["decomposition"]["per_task"] for run in runs)
     demos = {m: [d for (mm, _), r in by_key.items() if mm == m for d in r.data["decomposition"].get("demos", [])]
              for m in methods}
@@ -160,17 +160,17 @@ def miou_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
         avg = [float(r.data["decomposition"]["miou"]) for r in mruns]
         mean, std = mean_std(avg)
         means.append(mean)
-        row = [m, _pm(mean, std)]
+        row = [m, plus_minus(mean, std)]
         for task in tasks:
             vals = [float(r.data["decomposition"]["per_task"][task]) for r in mruns
                     if task in r.data["decomposition"]["per_task"]]
-            row.append(_pm(*mean_std(vals)))
+            row.append(plus_minus(*mean_std(vals)))
         if with_time:
             secs = [float(d["seconds"]) for d in demos[m] if "seconds" in d]
             row.append(f"{np.mean(secs):.3f}" if secs else "–")
         if with_novelty:
             nov = [float(d["novelty"]) for d in demos[m] if d.get("novelty") is not None]
-            row.append(_pm(*mean_std(nov), scale=1.0, digits=3) if nov else "–")
+            row.append(plus_minus(*mean_std(nov), scale=1.0, digits=3) if nov else "–")
         rows.append(row)
     best = np.nanmax(means)
     bold = {(i, 1) for i, v in enumerate(means) if v == best}
@@ -189,11 +189,11 @@ def planner_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
     runs = [r for r in runs if r.status == "ok" and (r.data.get("planner_eval") or {}).get("per_task")]
     if not runs:
         return None
-    by_key = _latest_per_method_seed(runs)
+    by_key = latest_per_method_seed(runs)
     tasks = _tasks_in_order(run.data["planner_eval"]["per_task"] for run in runs)
     header = ["Method", "Planner", "All tasks ↑", "Image-dependent ↑", *tasks]
     rows, means = [], []
-    for m in _methods_in_order(runs):
+    for m in methods_in_order(runs):
         mruns = [r for (mm, _), r in by_key.items() if mm == m]
         for name in ("base", "finetuned"):
             if not any(r.data["planner_eval"].get(f"{name}_exact_match") is not None for r in mruns):
@@ -202,11 +202,11 @@ def planner_table(title: str, runs: Sequence[RunRecord]) -> Table | None:
             means.append(mean)
             dep = [r.data["planner_eval"].get(f"{name}_image_dependent") for r in mruns]
             dep = [float(v) for v in dep if v is not None]
-            row = [m, name, _pm(mean, std), _pm(*mean_std(dep)) if dep else "–"]
+            row = [m, name, plus_minus(mean, std), plus_minus(*mean_std(dep)) if dep else "–"]
             for task in tasks:
                 vals = [float(r.data["planner_eval"]["per_task"][task][name]) for r in mruns
                         if task in r.data["planner_eval"]["per_task"]]
-                row.append(_pm(*mean_std(vals)))
+                row.append(plus_minus(*mean_std(vals)))
             rows.append(row)
     best = np.nanmax(means)
     bold = {(i, 2) for i, v in enumerate(means) if v == best}

@@ -63,7 +63,7 @@ class Table:
         return "\n".join(lines) + "\n"
 
 
-def _pm(mean: float, std: float, scale: float = 100.0, digits: int = 1) -> str:
+def plus_minus(mean: float, std: float, scale: float = 100.0, digits: int = 1) -> str:
     if math.isnan(mean):
         return "–"
     if math.isnan(std):  # a single value: no ± to show

@@ -75,7 +75,7 @@ def answer_loss(model, batch: dict) -> torch.Tensor:
                                              target.reshape(-1), ignore_index=-100)
 
 
-def _autocast(dtype: str):
+def autocast_context(dtype: str):
     """The context the training steps run in: fp32 as is, or bf16 autocast (weights stay fp32)."""
     import contextlib
 
@@ -113,7 +113,7 @@ def pick_train_dtype(model, batch: dict, choice: str, repeats: int = 2) -> tuple
         times = []
         for _ in range(repeats + 1):  # the first run warms up
             start = time.perf_counter()
-            with _autocast(dtype):
+            with autocast_context(dtype):
                 answer_loss(model, batch).backward()
             times.append(time.perf_counter() - start)
         model.zero_grad(set_to_none=True)
@@ -161,7 +161,7 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
         epoch_loss, n = 0.0, 0
         for batch in loader:
             with accelerator.accumulate(model):
-                with _autocast(train_dtype):
+                with autocast_context(train_dtype):
                     loss = answer_loss(model, batch)
                 accelerator.backward(loss)
                 if accelerator.sync_gradients:
@@ -281,7 +281,7 @@ def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_di
     return out
 
 
-def _lora_config(cfg: PlannerConfig):
+def lora_config(cfg: PlannerConfig):
     from peft import LoraConfig
 
     target = cfg.lora.target_modules
@@ -307,7 +307,7 @@ def finetune_lora(cfg: PlannerConfig, base_dir: str | Path, examples: Sequence[P
     device = "cuda" if torch.cuda.is_available() else None
     model, processor = load_model(base_dir, cfg, device=device)
     torch.manual_seed(settings.seed)
-    model = get_peft_model(model, _lora_config(cfg))
+    model = get_peft_model(model, lora_config(cfg))
     if cfg.kind == "llava_next_8b":
         model.gradient_checkpointing_enable()
         model.enable_input_require_grads()

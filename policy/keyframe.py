@@ -33,7 +33,7 @@ from policy.training import (
 from rdd.atomic import write_json_atomic
 from rdd.checks import FLAG, check_fields, whole
 from rdd.data.episode import Episode
-from rdd.labeler import Labeler
+from rdd.labelers.base import Labeler
 
 log = logging.getLogger(__name__)
 

@@ -14,7 +14,7 @@ The public API is this package's root::
 # costs about numpy's import (0.2 s), and every tool sees the names.
 from rdd.data.episode import Episode
 from rdd.data.load import episode_names, load_episodes
-from rdd.database import SubtaskDatabase
+from rdd.database.model import SubtaskDatabase
 from rdd.decomposers.base import Decomposer, Decomposition
 from rdd.decomposers.expert import ExpertDecomposer
 from rdd.decomposers.rdd import RDDDecomposer

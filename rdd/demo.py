@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rdd.database import SubtaskDatabase
+from rdd.database.model import SubtaskDatabase
 from rdd.encoders.embed import concat_views
 from rdd.segments import Segment, boundaries
 

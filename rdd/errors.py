@@ -7,7 +7,7 @@ at fault, so a command-line front end prints it as it is, without a traceback. I
 
 from __future__ import annotations
 
-__all__ = ["InputError"]
+__all__ = ["InputError", "UsageError"]
 
 
 class InputError(ValueError):
@@ -18,3 +18,7 @@ class InputError(ValueError):
         # The parameter at fault, when it is one: a front end names it as its user typed it
         # (``--max-len`` on the command line, ``decomposer.max_len`` in a config).
         self.option = option
+
+
+class UsageError(Exception):
+    """A command was called wrongly (a flag, a combination of flags): printed as one line, exit status 2."""

@@ -3,7 +3,7 @@
 Subcommands: ``build-db``, ``calibrate``, ``decompose``, ``evaluate``, ``plot``, ``demo``, ``serve``. Every expected failure
 is reported as one line naming the file or option at fault, with exit status 2 (``-v`` also prints
 the traceback); Ctrl-C stops with status 130 and leaves no partial output (``decompose`` and
-``build-db`` keep the episodes they finished beside it, so the same command resumes: ``rdd.cli.staging``).
+``build-db`` keep the episodes they finished beside it, so the same command resumes: ``rdd.batch.staging``).
 Outputs are written atomically, never replace an existing file or folder without ``--force``, and never
 replace or go inside an input of the same command, ``--force`` or not.
 """
@@ -18,7 +18,7 @@ import traceback
 from collections.abc import Sequence
 
 from rdd.cli import build_db, calibrate, decompose, demo, evaluate, plot, serve
-from rdd.cli.common import CLIError
+from rdd.errors import UsageError
 
 # One module per subcommand, each adding its own parser; the order is the order of ``--help``.
 SUBCOMMANDS = (build_db, calibrate, decompose, evaluate, plot, demo, serve)
@@ -47,7 +47,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "rdd") -> int:
             if args.command in ("decompose", "build-db") else ""
         print(f"\ninterrupted ({args.command}): stopped; no partial output was written{resumes}", file=sys.stderr)
         return 130
-    except CLIError as exc:
+    except UsageError as exc:
         return _report(args, str(exc), "error")
     except (FileNotFoundError, KeyError, ValueError, ImportError, RuntimeError, OSError,
             pickle.UnpicklingError) as exc:
@@ -64,4 +64,7 @@ def _report(args: argparse.Namespace, message: str, prefix: str) -> int:
     return 2
 
 
-__all__ = ["CLIError", "build_parser", "main"]
+# The name this error had before it moved to rdd.errors; kept for callers of rdd.cli.
+CLIError = UsageError
+
+__all__ = ["CLIError", "UsageError", "build_parser", "main"]

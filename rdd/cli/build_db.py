@@ -11,8 +11,13 @@ from typing import Any
 import numpy as np
 
 from rdd.atomic import atomic_file
+from rdd.batch.staging import (
+    Staging,
+    parts_folder,
+    run_staged,
+    settings_hash,
+)
 from rdd.cli.common import (
-    CLIError,
     cache_input,
     check_output,
     load_data,
@@ -23,17 +28,18 @@ from rdd.cli.common import (
     resolve_views,
 )
 from rdd.cli.components import expert_decomposer
-from rdd.cli.options import data_args, embed_args, expert_args, force_arg, with_reader_help
-from rdd.cli.staging import (
-    Staging,
+from rdd.cli.options import (
     add_workers_arg,
     check_workers,
-    parts_folder,
-    run_staged,
-    settings_hash,
+    data_args,
+    embed_args,
+    expert_args,
+    force_arg,
+    with_reader_help,
 )
 from rdd.data.episode import Episode
-from rdd.database_build import Entries, segment_entries
+from rdd.database.build import Entries, segment_entries
+from rdd.errors import UsageError
 from rdd.progress import progress
 
 
@@ -61,7 +67,7 @@ def _staged_entries(path: Path, episode: Episode) -> Entries:
     with np.load(path, allow_pickle=False) as part:
         info = json.loads(str(part["info"]))
         if info["episode"] != episode.name:
-            raise CLIError(f"{path}: a staged part of another episode ({info['episode']!r}, not "
+            raise UsageError(f"{path}: a staged part of another episode ({info['episode']!r}, not "
                            f"{episode.name!r}); delete {path.parent} and run again")
         frames = {episode.name: part["frames"]} if "frames" in part.files else {}
         return list(part["begin"]), list(part["end"]), info["durations"], info["labels"], info["meta"], frames
@@ -69,9 +75,9 @@ def _staged_entries(path: Path, episode: Episode) -> Entries:
 
 def cmd_build_db(args: argparse.Namespace) -> int:
     """Segment episodes (their sub-task annotations or the expert rule), build and calibrate the database."""
-    from rdd.calibrate import CalibrationError, calibrate, sample_episodes, summary
-    from rdd.database import SubtaskDatabase
-    from rdd.database_build import merge_entries
+    from rdd.core.calibrate import CalibrationError, calibrate, sample_episodes, summary
+    from rdd.database.build import merge_entries
+    from rdd.database.model import SubtaskDatabase
 
     workers = check_workers(args.workers, args)
     out = check_output(args.out, "--out", args.force, kind="dir", inputs=[("--data", args.data), cache_input(args)])
@@ -88,7 +94,7 @@ def cmd_build_db(args: argparse.Namespace) -> int:
     if source == "subtasks":
         missing = [e.name for e in episodes if e.segments is None]
         if missing:
-            raise CLIError(f"--segments subtasks: episodes {missing} of --data {args.data} carry no sub-task "
+            raise UsageError(f"--segments subtasks: episodes {missing} of --data {args.data} carry no sub-task "
                            "annotations (LeRobot: language_persistent subtask rows)")
         segmentations = [e.segments for e in episodes]
         instructions = [e.instructions or [""] * len(e.segments) for e in episodes]
@@ -99,7 +105,7 @@ def cmd_build_db(args: argparse.Namespace) -> int:
             try:
                 segmentations.append(expert.decompose(ep).segments)
             except ValueError as exc:
-                raise CLIError(f"--data {args.data}: {exc}") from exc
+                raise UsageError(f"--data {args.data}: {exc}") from exc
         instructions = None
     print(f"segments: {source} ({sum(len(s) for s in segmentations)} sub-tasks in {len(episodes)} episodes)",
           file=sys.stderr)
@@ -114,8 +120,8 @@ def cmd_build_db(args: argparse.Namespace) -> int:
         try:
             keep = sample_episodes(names, args.calibration_sample, args.calibration_seed)
         except CalibrationError as exc:
-            raise CLIError(f"--calibration-sample: {exc}") from exc
-    # Each episode's entries are staged beside --out as they are embedded (rdd.cli.staging): a run
+            raise UsageError(f"--calibration-sample: {exc}") from exc
+    # Each episode's entries are staged beside --out as they are embedded (rdd.batch.staging): a run
     # that stops resumes there. Only each segment's first and last frame are encoded, except for
     # the calibration sample.
     staging = Staging(parts_folder(out), settings_hash(args, encoder=[encoder.name, encoder.weights_id],
@@ -139,7 +145,7 @@ def cmd_build_db(args: argparse.Namespace) -> int:
                                                seed=args.calibration_seed,
                                                progress=lambda xs: progress(xs, "calibration", leave=True))
         except CalibrationError as exc:
-            raise CLIError(str(exc)) from exc
+            raise UsageError(str(exc)) from exc
     out = db.save(out, overwrite=args.force)
     print(f"built database {out}: {len(db)} sub-tasks from {len(episodes)} episodes "
           f"(encoder {encoder.name}, views {list(views)}, segments {source})")

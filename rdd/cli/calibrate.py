@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from rdd.cli.common import CLIError
+from rdd.errors import UsageError
 from rdd.progress import progress
 
 
@@ -21,16 +21,16 @@ def _grid_values(text: str | None, flag: str, cast) -> list | None:
         try:
             values.append(None if item.lower() == "none" else cast(item))
         except ValueError as exc:
-            raise CLIError(f"{flag} {text!r}: {item!r} is not a valid value") from exc
+            raise UsageError(f"{flag} {text!r}: {item!r} is not a valid value") from exc
     if not values:
-        raise CLIError(f"{flag} {text!r}: the grid is empty (give comma-separated values)")
+        raise UsageError(f"{flag} {text!r}: the grid is empty (give comma-separated values)")
     return values
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """Rerun leave-one-episode-out calibration on a saved database; record it in its manifest."""
-    from rdd.calibrate import CalibrationError, calibrate, default_grid, summary
-    from rdd.database import SubtaskDatabase
+    from rdd.core.calibrate import CalibrationError, calibrate, default_grid, summary
+    from rdd.database.model import SubtaskDatabase
 
     db = SubtaskDatabase.load(args.db)
     grid = default_grid(db)
@@ -45,8 +45,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     except CalibrationError as exc:
         typed = getattr(args, exc.option or "", None)  # a grid value given with --alpha etc.
         if typed is not None:
-            raise CLIError(f"--{exc.option.replace('_', '-')} {typed}: {exc}") from exc
-        raise CLIError(f"--db {args.db}: {exc}") from exc
+            raise UsageError(f"--{exc.option.replace('_', '-')} {typed}: {exc}") from exc
+        raise UsageError(f"--db {args.db}: {exc}") from exc
     if cal is None:
         print(f"warning: calibration skipped: --db {args.db} holds one episode, nothing to leave out",
               file=sys.stderr)

@@ -13,12 +13,10 @@ from rdd.atomic import check_writable
 from rdd.atomic import write_json_atomic as _write_json
 from rdd.data.episode import Episode
 from rdd.encoders.embed import DEFAULT_VIEWS, STATE_VIEW, has_view
+from rdd.errors import UsageError
 
 log = logging.getLogger("rdd")
 
-
-class CLIError(Exception):
-    """A user-facing error: printed as one line, exit status 2."""
 
 
 def parse_options(items: Sequence[str] | None, flag: str) -> dict[str, Any]:
@@ -26,11 +24,11 @@ def parse_options(items: Sequence[str] | None, flag: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for item in items or ():
         if "=" not in item:
-            raise CLIError(f"{flag} {item!r}: expected KEY=VALUE")
+            raise UsageError(f"{flag} {item!r}: expected KEY=VALUE")
         key, value = item.split("=", 1)
         key = key.strip().replace("-", "_")
         if not key.isidentifier():
-            raise CLIError(f"{flag} {item!r}: {key!r} is not a valid option name")
+            raise UsageError(f"{flag} {item!r}: {key!r} is not a valid option name")
         try:
             out[key] = json.loads(value)
         except json.JSONDecodeError:
@@ -65,14 +63,14 @@ def check_output(path: str | Path | None, flag: str, force: bool, kind: str = "f
     try:  # first: a name too long for its filesystem makes even is_dir() fail
         check_writable(path)
     except OSError as exc:
-        raise CLIError(f"{flag} {path}: cannot be written: {exc.strerror}") from exc
+        raise UsageError(f"{flag} {path}: cannot be written: {exc.strerror}") from exc
     if kind == "file" and path.is_dir():
-        raise CLIError(f"{flag} {path}: is an existing folder; give a file name")
+        raise UsageError(f"{flag} {path}: is an existing folder; give a file name")
     if kind == "dir" and path.exists() and not path.is_dir():
-        raise CLIError(f"{flag} {path}: is an existing file; give a folder name")
+        raise UsageError(f"{flag} {path}: is an existing file; give a folder name")
     check_not_input(path, flag, kind, inputs)
     if path.exists() and not force:
-        raise CLIError(f"{flag} {path}: already exists; pass --force to replace it")
+        raise UsageError(f"{flag} {path}: already exists; pass --force to replace it")
     return path
 
 
@@ -92,7 +90,7 @@ def check_not_input(path: Path, flag: str, kind: str, inputs: Inputs) -> None:
             relation = "is inside"
         else:
             continue
-        raise CLIError(f"{flag} {path}: {relation} {INPUT_NAMES.get(in_flag, 'the input ' + in_flag)} {in_path}; "
+        raise UsageError(f"{flag} {path}: {relation} {INPUT_NAMES.get(in_flag, 'the input ' + in_flag)} {in_path}; "
                        "an output never replaces or goes inside an input of the same command, --force or not")
 
 
@@ -121,28 +119,28 @@ def load_data(args: argparse.Namespace) -> list[Episode]:
     from rdd.data.load import episode_names, load_episodes
 
     if not Path(args.data).exists():
-        raise CLIError(f"--data {args.data}: no such file or folder")
+        raise UsageError(f"--data {args.data}: no such file or folder")
     options = parse_options(args.reader_option, "--reader-option")
     try:
         names = episode_names(args.format, args.data, **options)
         for flag, wanted in (("--include", args.include), ("--exclude", args.exclude)):
             unknown = sorted(set(wanted or ()) - set(names))
             if unknown:
-                raise CLIError(f"{flag}: no episode named {unknown} in {args.data}; have {names}")
+                raise UsageError(f"{flag}: no episode named {unknown} in {args.data}; have {names}")
         chosen = [n for n in names if (not args.include or n in set(args.include))
                   and n not in set(args.exclude or ())]
         if not chosen:
-            raise CLIError(f"--data {args.data}: no episodes left after --include/--exclude")
+            raise UsageError(f"--data {args.data}: no episodes left after --include/--exclude")
         episodes = load_episodes(args.format, args.data, names=set(chosen), **options)
     except TypeError as exc:
-        raise CLIError(f"--reader-option for --format {args.format}: {exc}".replace("load_episodes() ", "")
+        raise UsageError(f"--reader-option for --format {args.format}: {exc}".replace("load_episodes() ", "")
                        .replace("episode_names() ", "")) from exc
     except ValueError as exc:
         if "reader option" in str(exc):
-            raise CLIError(f"--reader-option: {exc}") from exc
+            raise UsageError(f"--reader-option: {exc}") from exc
         raise
     if args.format == "lerobot" and episodes:
-        from rdd.data.lerobot import describe_layout
+        from rdd.data.lerobot.reader import describe_layout
 
         # a detail of the reading, once per command: shown with -v, not on every plain run
         log.info("lerobot: %s", describe_layout(episodes[0]))
@@ -155,7 +153,7 @@ def unique_views(args_views: Sequence[str] | None) -> tuple[str, ...] | None:
         return None
     twice = sorted({v for v in args_views if list(args_views).count(v) > 1})
     if twice:
-        raise CLIError(f"--views {' '.join(args_views)}: view(s) {twice} named more than once; name each view once")
+        raise UsageError(f"--views {' '.join(args_views)}: view(s) {twice} named more than once; name each view once")
     return tuple(args_views)
 
 
@@ -170,10 +168,10 @@ def resolve_views(args_views: Sequence[str] | None, episode: Episode) -> tuple[s
     missing = [v for v in views if not has_view(episode, v)]
     if missing:
         state = f" (view {STATE_VIEW!r}: it has no joint state)" if STATE_VIEW in missing else ""
-        raise CLIError(f"--views: episode {episode.name!r} has no view {missing}{state}; "
+        raise UsageError(f"--views: episode {episode.name!r} has no view {missing}{state}; "
                        f"has {sorted(episode.views)}")
     if not views:
-        raise CLIError(f"episode {episode.name!r} has no camera views to embed")
+        raise UsageError(f"episode {episode.name!r} has no camera views to embed")
     return views
 
 
@@ -182,11 +180,11 @@ def make_encoder(name: str, options: dict[str, Any]):
     try:
         from rdd.encoders import load_encoder
     except ImportError as exc:  # pragma: no cover - encoders are part of the package
-        raise CLIError(f"--encoder {name}: encoders unavailable ({exc})") from exc
+        raise UsageError(f"--encoder {name}: encoders unavailable ({exc})") from exc
     try:
         return load_encoder(name, **options)
     except (ValueError, TypeError, FileNotFoundError, ImportError) as exc:
-        raise CLIError(f"--encoder {name}: {exc}") from exc
+        raise UsageError(f"--encoder {name}: {exc}") from exc
 
 
 def make_cache(args: argparse.Namespace):

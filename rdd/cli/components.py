@@ -15,7 +15,6 @@ from collections.abc import Mapping
 from typing import Any
 
 from rdd.cli.common import (
-    CLIError,
     make_cache,
     make_encoder,
     parse_options,
@@ -25,7 +24,7 @@ from rdd.cli.common import (
 from rdd.data.episode import Episode
 from rdd.decomposers.base import Decomposer
 from rdd.encoders.embed import DEFAULT_VIEWS
-from rdd.errors import InputError
+from rdd.errors import InputError, UsageError
 from rdd.registry import (
     RUNTIME_OBJECTS,
     available,
@@ -79,14 +78,14 @@ def build_decomposer(name: str, options: Mapping[str, Any], args: argparse.Names
     given_as.update({k: f"--option {k}={json.dumps(v)}" for k, v in options.items()})
     given_as.update({k: f"--{k.replace('_', '-')} {v}" for k, v in typed.items()})
     if "database" in takes and not getattr(args, "db", None):
-        raise CLIError(f"--decomposer {name} needs --db DIR (build one with `python -m rdd build-db`)")
+        raise UsageError(f"--decomposer {name} needs --db DIR (build one with `python -m rdd build-db`)")
     check_option_names("decomposer", cls, kwargs, reserved=SET_BY_CLI)
     runtime: dict[str, Any] = {}
     db = None
     if "cache" in takes:
         runtime["cache"] = make_cache(args)
     if "database" in takes:
-        from rdd.database import SubtaskDatabase
+        from rdd.database.model import SubtaskDatabase
 
         db = runtime["database"] = SubtaskDatabase.load(args.db)
         if "use_calibration" in params:
@@ -102,15 +101,15 @@ def build_decomposer(name: str, options: Mapping[str, Any], args: argparse.Names
     if "encoder" in takes:
         enc_name = args.encoder or (db.meta.get("encoder") if db is not None else DEFAULT_ENCODER)
         if not enc_name:
-            raise CLIError(f"--db {args.db} records no encoder; pass --encoder")
+            raise UsageError(f"--db {args.db} records no encoder; pass --encoder")
         runtime["encoder"] = make_encoder(enc_name, parse_options(args.encoder_option, "--encoder-option"))
     try:
         decomposer = construct(cls, runtime, f"decomposer {name}", **kwargs)
     except InputError as exc:
         if exc.option in given_as:
-            raise CLIError(f"{given_as[exc.option]}: {exc}") from exc
+            raise UsageError(f"{given_as[exc.option]}: {exc}") from exc
         if kwargs.get("use_calibration"):  # a value the database's calibration chose
-            raise CLIError(f"--db {args.db} (its calibration; --no-calibration ignores it): {exc}") from exc
+            raise UsageError(f"--db {args.db} (its calibration; --no-calibration ignores it): {exc}") from exc
         raise
     config: dict[str, Any] = dict(defaults)
     if "encoder" in runtime:
@@ -128,7 +127,7 @@ def expert_decomposer(args: argparse.Namespace) -> Decomposer:
     try:
         return build_decomposer("expert", {}, args)[0]
     except ValueError as exc:
-        raise CLIError(f"expert rule: {exc}") from exc
+        raise UsageError(f"expert rule: {exc}") from exc
 
 
 def make_decomposer(args: argparse.Namespace, first: Episode) -> tuple[Decomposer, dict[str, Any]]:
@@ -140,7 +139,7 @@ def make_decomposer(args: argparse.Namespace, first: Episode) -> tuple[Decompose
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ValueError) and "option" not in str(exc) and "must be" not in str(exc):
             raise
-        raise CLIError(f"--option for --decomposer {name}: {exc}") from exc
+        raise UsageError(f"--option for --decomposer {name}: {exc}") from exc
     return decomposer, {"decomposer": name, "options": options, **config}
 
 

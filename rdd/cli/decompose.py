@@ -10,8 +10,14 @@ from pathlib import Path
 from typing import Any
 
 from rdd.atomic import write_text_atomic
+from rdd.batch.staging import (
+    Staging,
+    digest,
+    parts_folder,
+    run_staged,
+    settings_hash,
+)
 from rdd.cli.common import (
-    CLIError,
     cache_input,
     check_output,
     load_data,
@@ -21,18 +27,17 @@ from rdd.cli.common import (
     write_json_atomic,
 )
 from rdd.cli.components import DECOMPOSERS, decomposer_help, make_decomposer
-from rdd.cli.options import data_args, embed_args, expert_args, force_arg, reader_help
-from rdd.cli.staging import (
-    Staging,
+from rdd.cli.options import (
     add_workers_arg,
     check_workers,
-    digest,
-    parts_folder,
-    run_staged,
-    settings_hash,
+    data_args,
+    embed_args,
+    expert_args,
+    force_arg,
+    reader_help,
 )
 from rdd.data.episode import Episode
-from rdd.errors import InputError
+from rdd.errors import InputError, UsageError
 
 OUTPUT_VERSION = 1
 FALLBACK_FIELDS = ("task", "episode", "index", "count", "start", "end")
@@ -46,13 +51,13 @@ def check_template(template: str) -> None:
     try:
         parsed = list(string.Formatter().parse(template))
     except ValueError as exc:
-        raise CLIError(f"--fallback-instruction {template!r}: {exc}; fields: {fields}") from exc
+        raise UsageError(f"--fallback-instruction {template!r}: {exc}; fields: {fields}") from exc
     for _text, name, spec, conversion in parsed:
         if name is None:
             continue
         if name not in FALLBACK_FIELDS or conversion or "{" in (spec or ""):
             shown = "{" + name + (f"!{conversion}" if conversion else "") + (f":{spec}" if spec else "") + "}"
-            raise CLIError(f"--fallback-instruction {template!r}: field {shown} is not allowed; fields are the plain "
+            raise UsageError(f"--fallback-instruction {template!r}: field {shown} is not allowed; fields are the plain "
                            f"names {fields} (no attribute or index access, no !r/!s/!a, no nested fields)")
 
 
@@ -63,7 +68,7 @@ def fallback_instruction(template: str, episode: Episode, index: int, count: int
         return template.format(task=episode.goal or episode.task, episode=episode.name, index=index + 1,
                                count=count, start=int(segment[0]), end=int(segment[1]))
     except (KeyError, IndexError, ValueError) as exc:
-        raise CLIError(f"--fallback-instruction {template!r}: {exc!r}; fields: "
+        raise UsageError(f"--fallback-instruction {template!r}: {exc!r}; fields: "
                        + ", ".join("{" + f + "}" for f in FALLBACK_FIELDS)) from exc
 
 
@@ -120,27 +125,27 @@ def make_labeler(args: argparse.Namespace):
     options = parse_options(getattr(args, "labeler_option", None), "--labeler-option")
     if name is None:
         if options:
-            raise CLIError("--labeler-option needs --labeler signals or --labeler vlm")
+            raise UsageError("--labeler-option needs --labeler signals or --labeler vlm")
         return None
     if name in ("signals", "vlm"):
         return _option_labeler(name, options)
     if options:
-        raise CLIError("--labeler retrieval takes no --labeler-option (its index is the database's)")
-    from rdd.database import SubtaskDatabase
-    from rdd.retrieval_labeler import RetrievalLabeler
+        raise UsageError("--labeler retrieval takes no --labeler-option (its index is the database's)")
+    from rdd.database.model import SubtaskDatabase
+    from rdd.labelers.retrieval import RetrievalLabeler
 
     path = args.label_db or args.db
     if not path:
-        raise CLIError("--labeler retrieval needs --label-db DIR (a database whose entries carry instructions)")
+        raise UsageError("--labeler retrieval needs --label-db DIR (a database whose entries carry instructions)")
     db = SubtaskDatabase.load(path)
     enc_name = db.meta.get("encoder")
     if not enc_name:
-        raise CLIError(f"--label-db {path} records no encoder")
+        raise UsageError(f"--label-db {path} records no encoder")
     encoder = make_encoder(enc_name, parse_options(args.encoder_option, "--encoder-option"))
     try:
         return RetrievalLabeler(db, encoder, cache=make_cache(args))
     except ValueError as exc:
-        raise CLIError(f"--label-db {path}: {exc}") from exc
+        raise UsageError(f"--label-db {path}: {exc}") from exc
 
 
 def _option_labeler(name: str, options: dict[str, Any]):
@@ -148,20 +153,20 @@ def _option_labeler(name: str, options: dict[str, Any]):
     from rdd.registry import check_option_names
 
     if name == "signals":
-        from rdd.signals_labeler import SignalsLabeler as cls
+        from rdd.labelers.signals import SignalsLabeler as cls
     else:
-        from rdd.vlm_labeler import VLMLabeler as cls
+        from rdd.labelers.vlm import VLMLabeler as cls
     try:
         check_option_names("labeler", cls, options)
         return cls(**options)
     except InputError as exc:
         shown = f"--labeler-option {exc.option}={json.dumps(options[exc.option])}" if exc.option in options \
             else f"--labeler {name}"
-        raise CLIError(f"{shown}: {exc}") from exc
+        raise UsageError(f"{shown}: {exc}") from exc
     except ValueError as exc:
         hint = " (e.g. --labeler-option base_url=http://127.0.0.1:8000/v1 --labeler-option model=NAME)" \
             if name == "vlm" else ""
-        raise CLIError(f"--labeler {name}: {exc}{hint}") from exc
+        raise UsageError(f"--labeler {name}: {exc}{hint}") from exc
 
 
 def lerobot_subtasks(episodes: Sequence[Episode], records: Sequence[dict[str, Any]], decomposer: str,
@@ -172,7 +177,7 @@ def lerobot_subtasks(episodes: Sequence[Episode], records: Sequence[dict[str, An
         instr = rec["instructions"]
         empty = [j for j, t in enumerate(instr or [None] * len(rec["segments"])) if not t or not str(t).strip()]
         if empty:
-            raise CLIError(
+            raise UsageError(
                 f"--write-lerobot: decomposer {decomposer} gives no instruction for segments {empty} of episode "
                 f"{ep.name!r} (rdd takes them from its database's entries: build it from annotated episodes); "
                 "pass --labeler signals (what the robot's hand and joint signals show), "
@@ -195,14 +200,14 @@ def _decompose_one(state, path: Path, episode: Episode, _payload: Any) -> None:
         record = episode_record(episode, decomposer.decompose(episode))
         fill_instructions(record, episode, labeler, args.fallback_instruction)
     except ValueError as exc:
-        raise CLIError(f"episode {episode.name!r} ({args.data}): {exc}") from exc
+        raise UsageError(f"episode {episode.name!r} ({args.data}): {exc}") from exc
     write_text_atomic(path, json.dumps({"episode": episode.name, "record": record}))
 
 
 def _staged_record(path: Path, episode: Episode) -> dict[str, Any]:
     part = json.loads(path.read_text())
     if part.get("episode") != episode.name:
-        raise CLIError(f"{path}: a staged part of another episode ({part.get('episode')!r}, not "
+        raise UsageError(f"{path}: a staged part of another episode ({part.get('episode')!r}, not "
                        f"{episode.name!r}); delete {path.parent} and run again")
     return part["record"]
 
@@ -210,13 +215,13 @@ def _staged_record(path: Path, episode: Episode) -> dict[str, Any]:
 def cmd_decompose(args: argparse.Namespace) -> int:
     """Decompose every episode at ``--data``; write the segments as JSON and/or into a LeRobot copy.
 
-    Each episode's record is staged beside the output as it is done (``rdd.cli.staging``), so a run
+    Each episode's record is staged beside the output as it is done (``rdd.batch.staging``), so a run
     that stops resumes where it stopped; ``--workers N`` decomposes N episodes at once.
     """
     if args.out is None and args.write_lerobot is None:
-        raise CLIError("decompose needs --out FILE.json, --write-lerobot DIR, or both")
+        raise UsageError("decompose needs --out FILE.json, --write-lerobot DIR, or both")
     if args.write_lerobot is not None and args.format != "lerobot":
-        raise CLIError(f"--write-lerobot needs --format lerobot, not {args.format}")
+        raise UsageError(f"--write-lerobot needs --format lerobot, not {args.format}")
     workers = check_workers(args.workers, args)
     inputs = [("--data", args.data), ("--db", args.db), ("--label-db", args.label_db), cache_input(args)]
     out = check_output(args.out, "--out", args.force, inputs=inputs)
@@ -225,10 +230,10 @@ def cmd_decompose(args: argparse.Namespace) -> int:
     if args.fallback_instruction is not None:
         fallback_instruction(args.fallback_instruction, Episode(name="check", views={}), 0, 1, (0, 1))
     if lerobot_out is not None and args.lerobot_version == "2.1":
-        from rdd.data.lerobot_dataset import LeRobotDataset
+        from rdd.data.lerobot.dataset import LeRobotDataset
 
         if LeRobotDataset(args.data).version == "v3.0":
-            raise CLIError(f"--lerobot-version 2.1: --data {args.data} is a v3.0 dataset; its copy is written as "
+            raise UsageError(f"--lerobot-version 2.1: --data {args.data} is a v3.0 dataset; its copy is written as "
                            "v3.0 (drop the option)")
     episodes = load_data(args)
     decomposer, config = make_decomposer(args, episodes[0])
@@ -245,7 +250,7 @@ def cmd_decompose(args: argparse.Namespace) -> int:
                executor=args.executor, address=args.ray_address)
     records = [_staged_record(path, ep) for path, ep, _ in items]
     if lerobot_out is not None:
-        from rdd.data.lerobot_write import write_subtasks
+        from rdd.data.lerobot.write import write_subtasks
 
         subtasks = lerobot_subtasks(episodes, records, args.decomposer)
         version = f"v{args.lerobot_version}"

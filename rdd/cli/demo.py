@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from rdd.cli.common import CLIError, check_output, write_json_atomic
+from rdd.cli.common import check_output, write_json_atomic
 from rdd.cli.options import force_arg
+from rdd.errors import UsageError
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -14,7 +15,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     try:
         from rdd.demo import run_demo
     except ImportError as exc:
-        raise CLIError(f"demo: rdd.demo is not available ({exc})") from exc
+        raise UsageError(f"demo: rdd.demo is not available ({exc})") from exc
     check_output(args.json, "--json", args.force)
     result = run_demo(seed=args.seed, index=args.index)  # prints its own summary
     if args.json:

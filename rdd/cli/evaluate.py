@@ -8,8 +8,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from rdd.cli.common import CLIError, check_output, log, write_json_atomic
+from rdd.cli.common import check_output, log, write_json_atomic
 from rdd.cli.options import force_arg
+from rdd.errors import UsageError
 
 # What each printed column is (rdd.metrics), for ``evaluate --help``.
 COLUMNS = """columns (one row per method and episode, then the method's MEAN over its episodes):
@@ -28,15 +29,15 @@ def read_segments_file(path: str | Path) -> dict[str, dict[str, Any]]:
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError as exc:
-        raise CLIError(f"{path}: no such file") from exc
+        raise UsageError(f"{path}: no such file") from exc
     except json.JSONDecodeError as exc:
-        raise CLIError(f"{path}: invalid JSON ({exc})") from exc
+        raise UsageError(f"{path}: invalid JSON ({exc})") from exc
     if not isinstance(data, dict) or not isinstance(data.get("episodes"), list):
-        raise CLIError(f"{path}: expected an object with an 'episodes' list (a decompose output)")
+        raise UsageError(f"{path}: expected an object with an 'episodes' list (a decompose output)")
     out = {}
     for i, rec in enumerate(data["episodes"]):
         if not isinstance(rec, dict) or "episode" not in rec or "segments" not in rec:
-            raise CLIError(f"{path}: episodes[{i}] lacks 'episode' or 'segments'")
+            raise UsageError(f"{path}: episodes[{i}] lacks 'episode' or 'segments'")
         _check_numbers(path, i, rec)
         out[str(rec["episode"])] = rec
     return out
@@ -49,13 +50,13 @@ def _check_numbers(path: Path, i: int, rec: dict[str, Any]) -> None:
 
     where = f"{path}: episodes[{i}] ({rec['episode']!r})"
     if "num_frames" in rec and rec["num_frames"] is not None and not whole(rec["num_frames"]):
-        raise CLIError(f"{where} field 'num_frames': expected a whole number, got {rec['num_frames']!r}")
+        raise UsageError(f"{where} field 'num_frames': expected a whole number, got {rec['num_frames']!r}")
     segments = rec["segments"]
     if not isinstance(segments, list):
-        raise CLIError(f"{where} field 'segments': expected a list of [start, end] pairs, got {segments!r}")
+        raise UsageError(f"{where} field 'segments': expected a list of [start, end] pairs, got {segments!r}")
     for j, seg in enumerate(segments):
         if not (isinstance(seg, list) and len(seg) == 2 and all(whole(v) for v in seg)):
-            raise CLIError(f"{where} field 'segments'[{j}]: expected [start, end] as two whole numbers, got {seg!r}")
+            raise UsageError(f"{where} field 'segments'[{j}]: expected [start, end] as two whole numbers, got {seg!r}")
 
 
 def pred_item(item: str) -> tuple[str, str]:
@@ -87,13 +88,13 @@ def pred_methods(items: Sequence[str], flag: str = "--pred") -> dict[str, dict[s
             config = json.loads(Path(path).read_text()).get("config") or {}
             label = str(config.get("decomposer") or Path(path).stem)
         if label in methods and not (named and explicit[label]):
-            raise CLIError(f"{flag} {item}: a method is already labelled {label!r}; "
+            raise UsageError(f"{flag} {item}: a method is already labelled {label!r}; "
                            f"name them, e.g. {flag} a={path} b=other.json (same name = one method's folds)")
         explicit[label] = named
         merged = methods.setdefault(label, {})
         for name, rec in records.items():
             if name in merged:
-                raise CLIError(f"{flag} {item}: episode {name!r} of method {label!r} came from an earlier file")
+                raise UsageError(f"{flag} {item}: episode {name!r} of method {label!r} came from an earlier file")
             merged[name] = rec
     return methods
 
@@ -108,7 +109,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     try:
         result = compare_methods(methods, gt, args.tolerance, allow_partial=args.allow_partial)
     except ValueError as exc:
-        raise CLIError(str(exc)) from exc
+        raise UsageError(str(exc)) from exc
     for label, m in result["methods"].items():
         if m["left_out"]["pred_only"] or m["left_out"]["gt_only"]:
             log.warning("--pred %s: scored %d shared episodes; left out %s", label, m["num_episodes"],

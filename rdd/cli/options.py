@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 from rdd.data.load import FORMATS
+from rdd.errors import UsageError
 
 
 def data_args(p: argparse.ArgumentParser, data_required: bool = True) -> None:
@@ -42,7 +43,7 @@ def force_arg(p: argparse.ArgumentParser) -> None:
 
 def reader_help() -> str:
     """The reader options of every format, for ``--help``."""
-    from rdd.data.lerobot import READER_OPTIONS
+    from rdd.data.lerobot.reader import READER_OPTIONS
 
     lines = ["reader options (--reader-option KEY=VALUE, VALUE as JSON):",
              "  rlbench: views=[\"front\",\"wrist\"] (null: every <view>_rgb folder)",
@@ -54,3 +55,31 @@ def reader_help() -> str:
 def with_reader_help() -> dict[str, Any]:
     """``add_parser`` keywords that list the reader options below a subcommand's help."""
     return {"formatter_class": argparse.RawDescriptionHelpFormatter, "epilog": reader_help()}
+
+
+def add_workers_arg(p: argparse.ArgumentParser) -> None:
+    """``--workers N``, ``--executor``, ``--ray-address``."""
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="processes working on episodes at once (default 1; each gets cores/N torch threads; "
+                        "with --executor ray, Ray actors of one CPU each)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="where episodes are worked on: local = processes on this machine; ray = tasks on a Ray "
+                        "cluster, the components sent once, the same results (needs: make install-cluster; "
+                        "--data readable at the same path on every node)")
+    p.add_argument("--ray-address", metavar="ADDRESS",
+                   help="--executor ray: the cluster to join (auto = the one this node belongs to, "
+                        "ray://HEAD:10001); default a local cluster of --workers CPUs started for the job")
+
+
+def check_workers(n: int, args: argparse.Namespace | None = None) -> int:
+    """``--workers`` as given, refused below 1; with ``args``, ``--ray-address`` only with ``--executor ray``
+    and Ray installed for it."""
+    if n < 1:
+        raise UsageError(f"--workers {n}: must be >= 1")
+    if args is not None and getattr(args, "ray_address", None) is not None and args.executor != "ray":
+        raise UsageError(f"--ray-address {args.ray_address}: needs --executor ray")
+    if args is not None and getattr(args, "executor", "local") == "ray":
+        from rdd.batch.ray_executor import import_ray
+
+        import_ray()  # before any work: the missing extra is a one-line error naming the install line
+    return n

@@ -4,24 +4,25 @@ from __future__ import annotations
 
 import argparse
 
-from rdd.cli.common import CLIError, check_output, load_data
+from rdd.cli.common import check_output, load_data
 from rdd.cli.evaluate import pred_inputs, pred_methods, read_segments_file
 from rdd.cli.options import data_args, force_arg, with_reader_help
+from rdd.errors import UsageError
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
     """Timeline figure: one row per method (and ground truth), keyframe thumbnails."""
-    from rdd.plots import figure_format, plot_timelines
+    from rdd.plots.timeline import figure_format, plot_timelines
 
     out = check_output(args.out, "--out", args.force,
                        inputs=[*pred_inputs(args.pred), ("--gt", args.gt), ("--data", args.data)])
     try:
         figure_format(out)
     except ValueError as exc:
-        raise CLIError(f"--out {exc}") from exc
+        raise UsageError(f"--out {exc}") from exc
     labels = args.labels or []
     if labels and len(labels) != len(args.pred):
-        raise CLIError(f"--labels: {len(labels)} labels for {len(args.pred)} --pred files")
+        raise UsageError(f"--labels: {len(labels)} labels for {len(args.pred)} --pred files")
     items = [f"{lab}={p}" for lab, p in zip(labels, args.pred, strict=True)] if labels else args.pred
     methods = pred_methods(items)
     rows = {label: {n: r["segments"] for n, r in recs.items()} for label, recs in methods.items()}
@@ -29,11 +30,11 @@ def cmd_plot(args: argparse.Namespace) -> int:
     gt = {n: r["segments"] for n, r in read_segments_file(args.gt).items()} if args.gt else {}
     names = args.episode or [n for n in episodes if any(n in r for r in rows.values())]
     if not names:
-        raise CLIError(f"--pred files share no episode with --data {args.data}")
+        raise UsageError(f"--pred files share no episode with --data {args.data}")
     panels = []
     for name in names:
         if name not in episodes:
-            raise CLIError(f"--episode {name!r} is not in --data {args.data}")
+            raise UsageError(f"--episode {name!r} is not in --data {args.data}")
         ep_rows = {label: r[name] for label, r in rows.items() if name in r}
         truth = gt.get(name) or episodes[name].segments
         panels.append((episodes[name], ep_rows, truth))

@@ -18,9 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from rdd.cli.common import CLIError, parse_options
+from rdd.batch.staging import cores, set_torch_threads
+from rdd.cli.common import parse_options
 from rdd.cli.components import SET_BY_CLI, make_decomposer
-from rdd.cli.staging import _set_torch_threads, cores
+from rdd.errors import UsageError
 from rdd.serve.body_limit import DEFAULT_MAX_BODY_BYTES
 from rdd.serve.service import DEFAULT_MAX_FRAMES, DecomposeService
 
@@ -42,7 +43,7 @@ def make_service(args: argparse.Namespace) -> DecomposeService:
         uvd = construct(uvd_cls, {"encoder": rdd_decomposer.encoder, "cache": None}, "decomposer uvd",
                         views=rdd_decomposer.views, **uvd_options)
     except (TypeError, ValueError) as exc:
-        raise CLIError(f"--uvd-option: {exc}") from exc
+        raise UsageError(f"--uvd-option: {exc}") from exc
     # The encoder's first call imports torch and readies its runtime (1-2 s): done here, at load,
     # so no request pays for it.
     rdd_decomposer.encoder.encode(np.zeros((1, 64, 64, 3), dtype=np.uint8))
@@ -52,7 +53,7 @@ def make_service(args: argparse.Namespace) -> DecomposeService:
         return DecomposeService({"rdd": rdd_decomposer, "uvd": uvd}, rdd_decomposer.views, config,
                                 root=args.root, max_frames=args.max_frames)
     except ValueError as exc:
-        raise CLIError(f"--root / --max-frames: {exc}") from exc
+        raise UsageError(f"--root / --max-frames: {exc}") from exc
 
 
 def _settings(args: argparse.Namespace) -> dict[str, Any]:
@@ -68,18 +69,18 @@ def worker_app():
     args = argparse.Namespace(**json.loads(os.environ[ARGS_ENV]))
     show_progress(False)
     service = make_service(args)
-    _set_torch_threads(max(1, cores() // args.workers))  # after the load: torch is imported by then
+    set_torch_threads(max(1, cores() // args.workers))  # after the load: torch is imported by then
     return create_app(service, args.max_body_bytes)
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
     """Load the service once (errors are one line, before any port is opened), then serve it."""
     if args.workers < 1:
-        raise CLIError(f"--workers {args.workers}: must be at least 1")
+        raise UsageError(f"--workers {args.workers}: must be at least 1")
     if not 0 < args.port < 65536:
-        raise CLIError(f"--port {args.port}: must be in 1..65535")
+        raise UsageError(f"--port {args.port}: must be in 1..65535")
     if args.max_body_bytes < 1:
-        raise CLIError(f"--max-body-bytes {args.max_body_bytes}: must be at least 1")
+        raise UsageError(f"--max-body-bytes {args.max_body_bytes}: must be at least 1")
     try:
         import uvicorn
     except ImportError as exc:

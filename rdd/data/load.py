@@ -18,7 +18,7 @@ def _reader(format: str, options: dict[str, Any]):
 
         return rlbench
     if format == "lerobot":
-        from rdd.data import lerobot
+        from rdd.data.lerobot import reader as lerobot
 
         return lerobot
     if format == "native":

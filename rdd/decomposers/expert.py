@@ -12,8 +12,7 @@ import numpy as np
 
 from rdd.checks import number, one_of
 from rdd.data.episode import Episode
-from rdd.decomposers.base import Decomposer, Decomposition
-from rdd.hand_events import (
+from rdd.data.hand_events import (
     episode_moves,
     event_timescale,
     hand_arm_cuts,
@@ -21,6 +20,7 @@ from rdd.hand_events import (
     smoothed_speed,
     still_runs,
 )
+from rdd.decomposers.base import Decomposer, Decomposition
 from rdd.segments import keyframes_to_segments
 
 

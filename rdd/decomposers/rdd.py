@@ -12,7 +12,7 @@ programming over the dense score array.
   partition, so it is computed there (``meta["novelty_partition"] == "default"``).
 
 ``G(I) = -|start - UVD(end-1)| / weight(I)`` with one backward UVD step per end frame, computed for
-all end frames at once (``rdd.milestones.uvd_previous_milestones_all``).
+all end frames at once (``rdd.core.milestones.uvd_previous_milestones_all``).
 """
 
 from __future__ import annotations
@@ -22,17 +22,17 @@ from typing import Any
 
 import numpy as np
 
-from rdd import scoring
 from rdd.checks import FLAG, check_options, number, one_of, whole
+from rdd.core import scoring
+from rdd.core.solver import candidate_intervals, max_sum_partition_dense
 from rdd.data.episode import Episode
-from rdd.database import SubtaskDatabase
+from rdd.database.model import SubtaskDatabase
 from rdd.decomposers.base import Decomposer, Decomposition
 from rdd.decomposers.uvd import UVD_RULES
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import DEFAULT_VIEWS, episode_frame_vectors
 from rdd.errors import InputError
 from rdd.index import NearestIndex, load_index
-from rdd.solver import candidate_intervals, max_sum_partition_dense
 
 MODES = ("default", "ood")
 PAPER_DEFAULTS: dict[str, Any] = {"alpha": 1.0, "min_len": 2, "max_len": None}
@@ -53,7 +53,7 @@ class RDDDecomposer(Decomposer):
     """Retrieval-based demonstration decomposer over a :class:`SubtaskDatabase`.
 
     ``alpha``, ``min_len`` and ``max_len`` left out take the paper's values (1, 2, unbounded), or
-    with ``use_calibration=True`` the values the database's calibration chose (``rdd.calibrate``);
+    with ``use_calibration=True`` the values the database's calibration chose (``rdd.core.calibrate``);
     an explicitly given value always wins. ``beta`` left out is 0 in the default mode and 0.1 in
     the OOD mode. Frame vectors follow the database's ``normalize_views`` setting.
     """

@@ -1,4 +1,4 @@
-"""UVD (Zhang et al., ICRA 2024) as a decomposer: milestones (``rdd.milestones``) of an episode's
+"""UVD (Zhang et al., ICRA 2024) as a decomposer: milestones (``rdd.core.milestones``) of an episode's
 frame vectors become its keyframes."""
 
 from __future__ import annotations
@@ -8,11 +8,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from rdd.checks import FLAG, number, whole
+from rdd.core.milestones import uvd_milestones
 from rdd.data.episode import Episode
 from rdd.decomposers.base import Decomposer, Decomposition
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import DEFAULT_VIEWS, episode_frame_vectors
-from rdd.milestones import uvd_milestones
 from rdd.segments import keyframes_to_segments
 
 # UVD's own options (also RDD's uvd_options, which reach the same milestone search).

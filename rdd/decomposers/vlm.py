@@ -1,7 +1,7 @@
 """VLM-prompt baseline: show a vision-language model the (subsampled) demonstration frames and ask
 for the keyframe indices, as the RDD paper's prompt does.
 
-Backends (``rdd.vlm_backends``, shared with the VLM labeler): an OpenAI-compatible
+Backends (``rdd.labelers.vlm_backends``, shared with the VLM labeler): an OpenAI-compatible
 ``/chat/completions`` endpoint and a local transformers VLM checkpoint.
 """
 
@@ -15,8 +15,7 @@ from rdd.checks import whole
 from rdd.data.episode import Episode
 from rdd.decomposers.base import Decomposer, Decomposition
 from rdd.errors import InputError
-from rdd.segments import keyframes_to_segments
-from rdd.vlm_backends import (
+from rdd.labelers.vlm_backends import (
     VLMBackend,
     VLMError,
     check_backend_options,
@@ -24,6 +23,7 @@ from rdd.vlm_backends import (
     resize_max_side,
     subsample_indices,
 )
+from rdd.segments import keyframes_to_segments
 
 PROMPT = (
     "There is a robot doing a task, which can be segmented into multiple steps. "

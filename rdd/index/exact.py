@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from rdd.checks import FLAG, whole
+from rdd.core.scoring import check_intervals, cosine_to_angular
 from rdd.index._cap_bounds import CELLS_FORMAT, Cells, fit_cells, load_cells, ranges, save_cells
 from rdd.index.base import NearestIndex
-from rdd.scoring import check_intervals, cosine_to_angular
 
 log = logging.getLogger(__name__)
 DENSE_ABOVE = 0.6  # share of surviving entries above which pruning does not pay: search them all

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from rdd.checks import one_of, whole
+from rdd.core.scoring import cosine_to_angular
 from rdd.index.base import NearestIndex, interval_matrix
-from rdd.scoring import cosine_to_angular
 
 log = logging.getLogger(__name__)
 KINDS = ("flat", "ivf", "hnsw")

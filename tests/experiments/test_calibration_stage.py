@@ -40,7 +40,7 @@ def _only_database(stage_dir: Path) -> Path:
 
 
 def test_only_the_calibrated_decomposer_builds_the_calibration(tmp_path: Path):
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
 
     cache = tmp_path / "cache"
     plain = _decompose("rdd", cache, tmp_path / "rdd")

@@ -96,7 +96,7 @@ def test_each_free_first_takes_free_items_then_waits_for_busy_ones():
 def test_database_parts_are_built_per_task_while_another_job_holds_one(tmp_path: Path):
     pytest.importorskip("pybullet")
     from experiments.graph import Run
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
 
     busy, free = "open_drawer", "turn_tap"
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):

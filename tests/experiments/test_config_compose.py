@@ -35,7 +35,7 @@ def test_every_group_has_options():
 @pytest.fixture(scope="module")
 def runtime():
     """The run's runtime objects, each under its one name (a tiny database, the pixels encoder)."""
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
     from rdd.encoders import load_encoder
 
     enc = load_encoder("pixels", size=4)

@@ -66,7 +66,7 @@ def test_runtime_objects_go_only_where_taken(encoder):
 
 def test_rdd_gets_the_index_group_s_choice_from_its_config(encoder):
     """The index is composed (``index: ${index}``), not passed: abl_backend's sweep reaches RDD."""
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
 
     rng = np.random.default_rng(0)
     db = SubtaskDatabase.from_arrays(rng.standard_normal((6, 2 * encoder.dim)),

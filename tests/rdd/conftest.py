@@ -1,4 +1,4 @@
-"""Small LeRobot datasets (v2.1 and v3.0) written with rdd.data.lerobot_synth, as LeRobot lays them out;
+"""Small LeRobot datasets (v2.1 and v3.0) written with rdd.testing.lerobot_synth, as LeRobot lays them out;
 a stand-in chat-completions server for the VLM tests."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rdd.data.lerobot_synth import (
+from rdd.testing.lerobot_synth import (
     KEY,
     TASK,
     episode_rows,

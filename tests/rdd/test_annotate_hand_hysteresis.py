@@ -70,7 +70,7 @@ def test_debounce_undoes_flickers_and_a_cut_short_state(hyst):
 
 def test_annotated_copy_reads_back_through_build_db(hyst, lerobot_factory, tmp_path, capsys):
     from rdd.cli import main
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
 
     # The factory's gripper dim (3) is 1 (open) for frames < n // 2 and 0 after; 10 fps, dwell 2 frames.
     lengths = (30, 36, 24)

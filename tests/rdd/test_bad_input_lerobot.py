@@ -15,7 +15,7 @@ pytest.importorskip("av")
 import pyarrow.parquet as pq  # noqa: E402
 
 from rdd.cli import main  # noqa: E402
-from rdd.data.lerobot import load_episodes  # noqa: E402
+from rdd.data.lerobot.reader import load_episodes  # noqa: E402
 from rdd.errors import InputError  # noqa: E402
 
 EP0 = "data/chunk-000/episode_000000.parquet"

@@ -12,8 +12,8 @@ import pytest
 
 def test_synthetic_v30_reads_back_frame_by_frame(tmp_path):
     pytest.importorskip("av")
-    from rdd.data.lerobot import load_episodes
-    from rdd.data.lerobot_synth import write_synthetic_v30
+    from rdd.data.lerobot.reader import load_episodes
+    from rdd.testing.lerobot_synth import write_synthetic_v30
 
     lengths = [[12, 9], [7], [5, 6, 4]]  # three data/video files of 2, 1 and 3 episodes
     root = write_synthetic_v30(tmp_path / "ds", lengths, size=(24, 32))

@@ -7,8 +7,14 @@ import logging
 import numpy as np
 import pytest
 
-from rdd.calibrate import CalibrationError, calibrate, check_grid, default_grid, sample_episodes
-from rdd.database import SubtaskDatabase
+from rdd.core.calibrate import (
+    CalibrationError,
+    calibrate,
+    check_grid,
+    default_grid,
+    sample_episodes,
+)
+from rdd.database.model import SubtaskDatabase
 from rdd.decomposers.rdd import RDDDecomposer
 from rdd.demo import SyntheticWorld, build_synthetic_database
 from rdd.metrics import miou

@@ -14,7 +14,7 @@ import pytest
 from rdd.cli import main
 from rdd.cli.common import parse_options
 from rdd.data.native import save_episode
-from rdd.data.native_synth import colour_episode
+from rdd.testing.native_synth import colour_episode
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -167,7 +167,7 @@ def test_build_db_resumes_its_embedding(native_six, tmp_path, monkeypatch):
 
 
 def test_write_lerobot_resumes(lerobot_factory, tmp_path, monkeypatch):
-    import rdd.data.lerobot_write as writer
+    import rdd.data.lerobot.write as writer
 
     src = lerobot_factory("v3.0", lengths=(30, 36, 24, 20))  # data files: episodes 0-1 and 2-3
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rdd.data.episode import Episode
-from rdd.database import DatabaseError, SubtaskDatabase
+from rdd.database.model import DatabaseError, SubtaskDatabase
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import episode_frame_vectors
 

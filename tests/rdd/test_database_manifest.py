@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from rdd.cli import main
-from rdd.database import DatabaseError, SubtaskDatabase
-from rdd.database_store import SEAL
+from rdd.database.model import DatabaseError, SubtaskDatabase
+from rdd.database.store import SEAL
 
 CALIBRATION = {"chosen": {"alpha": 0.5, "min_len": 2, "max_len": None}, "score": 0.8}
 

@@ -76,7 +76,7 @@ def _episode(name: str, lengths: list[int], anchors: np.ndarray):
 
 
 def test_same_rdd_decomposition_on_either_runtime(pair):
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
     from rdd.decomposers.rdd import RDDDecomposer
 
     anchors = frames(4, seed=3).astype(np.float32)

@@ -64,7 +64,7 @@ def test_include_never_opens_an_excluded_episode(lerobot_factory, tmp_path, monk
 
 
 def test_episodes_option_reads_only_those(lerobot_factory):
-    from rdd.data.lerobot import episode_names, load_episodes
+    from rdd.data.lerobot.reader import episode_names, load_episodes
 
     src = lerobot_factory("v2.1")
     _corrupt_episode(src, "v2.1")

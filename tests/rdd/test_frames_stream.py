@@ -16,7 +16,7 @@ from rdd.encoders._stream import encode_view, prefetch
 @pytest.fixture
 def v30(lerobot_factory):
     """Three episodes of a v3.0 dataset; episodes 0 and 1 share one video file."""
-    from rdd.data.lerobot import load_episodes
+    from rdd.data.lerobot.reader import load_episodes
 
     return load_episodes(lerobot_factory("v3.0", (30, 36, 24)), max_side=12)
 
@@ -41,7 +41,7 @@ def test_iter_load_yields_what_load_returns(v30):
 
 
 def test_missing_frame_error_is_unchanged(v30):
-    from rdd.data.lerobot_video import VideoFrames
+    from rdd.data.lerobot.video import VideoFrames
 
     src = _source(v30[2])
     late = VideoFrames(src.path, np.append(src.timestamps, src.timestamps[-1] + 5.0), src.tolerance_s)
@@ -108,7 +108,7 @@ def test_a_shared_video_file_is_hashed_once(v30, monkeypatch):
     assert [ep.fingerprint() for ep in v30] == prints and len(calls) == 2
 
     # A rewritten file (new modification time) is hashed again.
-    from rdd.data.lerobot_video import VideoFrames
+    from rdd.data.lerobot.video import VideoFrames
 
     src = _source(v30[0])
     st = os.stat(src.path)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from rdd.data.episode import Episode
+from rdd.data.hand_events import hand_moves, sample_period, turning_points
 from rdd.decomposers.expert import ExpertDecomposer
-from rdd.hand_events import hand_moves, sample_period, turning_points
 
 FPS = 30
 

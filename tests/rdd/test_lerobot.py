@@ -12,8 +12,8 @@ pa = pytest.importorskip("pyarrow")
 av = pytest.importorskip("av")
 import pyarrow.parquet as pq  # noqa: E402
 
-from rdd.data.lerobot import load_episode, load_episodes  # noqa: E402
-from rdd.data.lerobot_dataset import LeRobotDataset  # noqa: E402
+from rdd.data.lerobot.dataset import LeRobotDataset  # noqa: E402
+from rdd.data.lerobot.reader import load_episode, load_episodes  # noqa: E402
 
 KEY = "observation.images.top"
 FPS = 10
@@ -127,7 +127,7 @@ def test_real_g1_inferred_hands(real_data):
     right hand closes on the bottle once and opens once, the left rests, so the flag (fraction of
     hands open) changes exactly twice per episode."""
     G1 = real_data("lerobot/unitree_g1_pick_bottle")
-    from rdd.data.lerobot import describe_layout
+    from rdd.data.lerobot.reader import describe_layout
 
     for e in load_episodes(G1, skip_missing=True):
         g = e.meta["gripper"]
@@ -138,8 +138,8 @@ def test_real_g1_inferred_hands(real_data):
 
 
 def test_names_inference_and_options(tmp_path, caplog):
-    from rdd.data.lerobot import check_reader_options
-    from rdd.data.lerobot_layout import feature_names, hand_flags, infer_layout
+    from rdd.data.lerobot.layout import feature_names, hand_flags, infer_layout
+    from rdd.data.lerobot.reader import check_reader_options
 
     names = ["l_shoulder", "left_elbow", "left_gripper", "right_elbow", "RightHandIndex", "right_finger2", "waist"]
     assert infer_layout(names) == ([0, 1, 3, 6], {"left": [2], "right": [4, 5]})

@@ -8,8 +8,8 @@ import json
 import pytest
 
 from rdd.cli import main
-from rdd.data.lerobot import load_episodes
-from rdd.database import SubtaskDatabase
+from rdd.data.lerobot.reader import load_episodes
+from rdd.database.model import SubtaskDatabase
 
 pytest.importorskip("pyarrow")
 pytest.importorskip("av")

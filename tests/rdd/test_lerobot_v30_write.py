@@ -15,7 +15,7 @@ pytest.importorskip("av")
 import pyarrow.parquet as pq  # noqa: E402
 
 from rdd.cli import main  # noqa: E402
-from rdd.data.lerobot import load_episodes  # noqa: E402
+from rdd.data.lerobot.reader import load_episodes  # noqa: E402
 
 # LeRobot's language-column rules (huggingface/lerobot src/lerobot/datasets/language.py), restated.
 PERSISTENT_ROW_FIELDS = ("role", "content", "style", "timestamp", "camera", "tool_calls")

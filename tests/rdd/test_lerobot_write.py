@@ -16,9 +16,9 @@ pytest.importorskip("av")
 import pyarrow.parquet as pq  # noqa: E402
 
 from rdd.cli import main  # noqa: E402
-from rdd.data.lerobot import load_episodes  # noqa: E402
-from rdd.data.lerobot_write import write_subtasks  # noqa: E402
-from rdd.database import SubtaskDatabase  # noqa: E402
+from rdd.data.lerobot.reader import load_episodes  # noqa: E402
+from rdd.data.lerobot.write import write_subtasks  # noqa: E402
+from rdd.database.model import SubtaskDatabase  # noqa: E402
 
 LANG = {"dtype": "language", "shape": [1], "names": None}
 

@@ -94,7 +94,7 @@ def test_errors_name_the_fault(tmp_path):
 
 
 def test_colour_episode_drifts_red_green_blue_with_the_gripper_closed_in_the_second():
-    from rdd.data.native_synth import colour_episode
+    from rdd.testing.native_synth import colour_episode
 
     ep = colour_episode("c", [4, 5, 6], seed=0, size=8)
     front = ep.frames("front").astype(float).mean(axis=(1, 2))

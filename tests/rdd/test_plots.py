@@ -7,7 +7,7 @@ import pytest
 from PIL import Image
 
 from rdd.data.episode import Episode
-from rdd.plots import plot_timelines
+from rdd.plots.timeline import plot_timelines
 
 
 def test_timeline_png(tmp_path):
@@ -42,7 +42,7 @@ def test_names_that_are_not_utf8_are_drawn_escaped(toy_native, tmp_path, suffix)
     import shutil
 
     from rdd.cli import main
-    from rdd.plots import drawable
+    from rdd.plots.timeline import drawable
 
     data = tmp_path / "ds"
     bad = os.fsdecode(b"ep\xff")

@@ -15,7 +15,7 @@ import rdd
 ROOT = Path(__file__).resolve().parents[2]
 # Public name -> the module that defines it (written out here, not read from rdd).
 HOMES = {
-    "SubtaskDatabase": "rdd.database", "RDDDecomposer": "rdd.decomposers.rdd",
+    "SubtaskDatabase": "rdd.database.model", "RDDDecomposer": "rdd.decomposers.rdd",
     "UVDDecomposer": "rdd.decomposers.uvd", "UniformDecomposer": "rdd.decomposers.uniform",
     "ExpertDecomposer": "rdd.decomposers.expert", "VLMDecomposer": "rdd.decomposers.vlm",
     "Decomposer": "rdd.decomposers.base", "Decomposition": "rdd.decomposers.base",

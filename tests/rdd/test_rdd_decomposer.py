@@ -8,15 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rdd.core.milestones import uvd_previous_milestone
 from rdd.data.episode import Episode
-from rdd.database import DatabaseError, SubtaskDatabase
+from rdd.database.model import DatabaseError, SubtaskDatabase
 from rdd.decomposers.base import Decomposition
 from rdd.decomposers.rdd import RDDDecomposer
 from rdd.demo import SyntheticWorld, build_synthetic_database, run_demo
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import concat_views, episode_frame_vectors
 from rdd.errors import InputError
-from rdd.milestones import uvd_previous_milestone
 
 CONF = Path(__file__).resolve().parents[2] / "conf" / "decomposer"
 

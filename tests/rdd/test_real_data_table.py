@@ -107,7 +107,7 @@ def test_g1_two_annotations(table, real_data, tmp_path, monkeypatch):
     assert not rows["rule"]["hysteresis"]["trivial"] and not rows["uvd"]["rule"]["trivial"]
     # The hysteresis database holds the annotation script's segments of the training episodes.
     hands = segments(out / "g1" / "hysteresis.json")
-    from rdd.database import SubtaskDatabase
+    from rdd.database.model import SubtaskDatabase
 
     db = SubtaskDatabase.load(out / "g1" / "db_hysteresis")
     got = {}

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from rdd.data.episode import Episode
-from rdd.database import DatabaseError, SubtaskDatabase
+from rdd.database.model import DatabaseError, SubtaskDatabase
 from rdd.encoders.pixels import PixelsEncoder
-from rdd.retrieval_labeler import RetrievalLabeler
+from rdd.labelers.retrieval import RetrievalLabeler
 
 COLOURS = {"a": (250, 10, 10), "b": (10, 250, 10), "c": (10, 10, 250), "d": (250, 250, 10)}
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rdd import scoring
-from rdd.milestones import uvd_previous_milestone
-from rdd.solver import max_sum_partition
+from rdd.core import scoring
+from rdd.core.milestones import uvd_previous_milestone
+from rdd.core.solver import max_sum_partition
 
 
 def test_interval_vectors_layout():

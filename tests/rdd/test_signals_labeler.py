@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rdd.data.episode import Episode
-from rdd.signals_labeler import SignalsLabeler
+from rdd.labelers.signals import SignalsLabeler
 
 
 def two_handed(t: int = 120) -> Episode:

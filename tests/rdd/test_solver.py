@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rdd.solver import candidate_intervals, max_sum_partition, max_sum_partition_dense
+from rdd.core.solver import candidate_intervals, max_sum_partition, max_sum_partition_dense
 
 
 def all_partitions(n: int, min_len: int, max_len: int | None):

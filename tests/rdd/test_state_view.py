@@ -78,7 +78,7 @@ def test_state_view_adds_the_hands_or_the_gripper():
 
 
 def test_hand_opening_is_the_median_of_the_finger_dims_and_wins_over_the_level():
-    from rdd.data.lerobot_layout import finger_levels, hand_levels
+    from rdd.data.lerobot.layout import finger_levels, hand_levels
 
     t = np.arange(30.0)
     # one hand: four fingers close at frames 10-13 (one of them late, at 25), the thumb bends early
@@ -99,7 +99,7 @@ def test_hand_opening_is_the_median_of_the_finger_dims_and_wins_over_the_level()
 def test_a_state_database_of_another_view_version_is_refused(data, tmp_path, capsys):
     """A database whose state view was computed another way (version 1: a hand's mean level) would be
     matched against vectors it never held: loading it names the version and says to rebuild."""
-    from rdd.database_store import seal
+    from rdd.database.store import seal
 
     common = ["--format", "native", "--data", str(data), "--encoder", "pixels", "--encoder-option", "size=4",
               "--no-cache"]

@@ -9,10 +9,10 @@ from hypothesis import strategies as st
 from scipy.signal import argrelextrema
 from sklearn.metrics.pairwise import pairwise_kernels
 
+from rdd.core.milestones import uvd_milestones, uvd_previous_milestone, uvd_previous_milestones_all
 from rdd.data.episode import Episode
 from rdd.decomposers.uvd import UVDDecomposer
 from rdd.encoders.base import Encoder
-from rdd.milestones import uvd_milestones, uvd_previous_milestone, uvd_previous_milestones_all
 
 
 def reference_embedding_decomp(emb, normalize_curve=False, min_interval=18, window_length=None,

@@ -10,7 +10,12 @@ import pytest
 
 from rdd.data.episode import Episode
 from rdd.decomposers.vlm import VLMDecomposer, parse_keyframe_indices
-from rdd.vlm_backends import OpenAIChatBackend, TransformersVLMBackend, VLMError, subsample_indices
+from rdd.labelers.vlm_backends import (
+    OpenAIChatBackend,
+    TransformersVLMBackend,
+    VLMError,
+    subsample_indices,
+)
 
 SECRET = "sk-test-secret-value-123"
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from rdd.data.episode import Episode
-from rdd.vlm_backends import VLMError
-from rdd.vlm_labeler import VLMLabeler, instruction_from_answer
+from rdd.labelers.vlm import VLMLabeler, instruction_from_answer
+from rdd.labelers.vlm_backends import VLMError
 
 
 def episode(t=40) -> Episode:
@@ -131,7 +131,7 @@ def decompose(src, out, endpoint_url, *extra):
 
 
 def test_write_lerobot_is_all_or_nothing(lerobot_factory, tmp_path, endpoint, capsys):
-    from rdd.data.lerobot import load_episodes
+    from rdd.data.lerobot.reader import load_episodes
 
     src = lerobot_factory("v3.0")  # 3 episodes, 2 segments each: 6 calls
     out = tmp_path / "labelled"

@@ -1,4 +1,4 @@
-"""The on-disk form of a sub-task database (:class:`rdd.database.SubtaskDatabase`).
+"""The on-disk form of a sub-task database (:class:`rdd.database.model.SubtaskDatabase`).
 
 A database is a directory with ``begin.npy``, ``end.npy``, ``durations.npy``,
 ``entries.json`` (episode, task, instruction, start, end per entry), optionally ``frames.npz``
@@ -20,17 +20,15 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from rdd.atomic import write_json_atomic
 from rdd.data.frames import update_with_file
 from rdd.errors import InputError
-
-if TYPE_CHECKING:
-    from rdd.database import SubtaskDatabase
 
 FORMAT_VERSION = 2
 UNSEALED_VERSION = 1  # format 1: the same files, without field_checksums
@@ -82,38 +80,38 @@ def check_seal(manifest: dict[str, Any], mpath: Path, skip: tuple[str, ...] = ()
                                 "the database was written?); restore it or rebuild the database")
 
 
-def make_manifest(db: SubtaskDatabase, out: Path) -> dict[str, Any]:
-    """The manifest of ``db``, whose other files are already written in ``out``."""
-    files = [*_ARRAYS, _ENTRIES] + ([_FRAMES] if db.frames else [])
+def make_manifest(out: Path, meta: Mapping[str, Any], frame_dim: int, count: int,
+                  frames_episodes: Sequence[str]) -> dict[str, Any]:
+    """The manifest of a database whose other files are already written in ``out``."""
+    files = [*_ARRAYS, _ENTRIES] + ([_FRAMES] if frames_episodes else [])
     return seal({
         "format_version": FORMAT_VERSION,
-        "encoder": db.meta.get("encoder"),
-        "weights_id": db.meta.get("weights_id"),
-        "views": db.meta.get("views"),
-        "normalize_views": bool(db.meta.get("normalize_views", True)),
-        "frame_dim": db.frame_dim,
-        "count": len(db),
-        "frames_episodes": sorted(db.frames),
-        "calibration": db.meta.get("calibration"),
-        "extra": {k: v for k, v in db.meta.items()
+        "encoder": meta.get("encoder"),
+        "weights_id": meta.get("weights_id"),
+        "views": meta.get("views"),
+        "normalize_views": bool(meta.get("normalize_views", True)),
+        "frame_dim": frame_dim,
+        "count": count,
+        "frames_episodes": sorted(frames_episodes),
+        "calibration": meta.get("calibration"),
+        "extra": {k: v for k, v in meta.items()
                   if k not in ("encoder", "weights_id", "views", "normalize_views", "calibration")},
         "checksums": {name: _sha256(out / name) for name in files},
     })
 
 
-def write_files(db: SubtaskDatabase, tmp: Path) -> None:
-    """Write every file of ``db`` into the (temporary, empty) directory ``tmp``, the manifest last."""
-    for name, arr in zip(_ARRAYS, (db.begin, db.end, db.durations), strict=True):
+def write_files(tmp: Path, arrays: Sequence[np.ndarray], entries: Mapping[str, Any],
+                frames: Mapping[str, np.ndarray], meta: Mapping[str, Any], frame_dim: int) -> None:
+    """Write a database's files into the (temporary, empty) directory ``tmp``, the manifest last:
+    ``arrays`` (begin, end, durations), ``entries`` (per-entry fields), ``frames`` (stored frames per episode)."""
+    for name, arr in zip(_ARRAYS, arrays, strict=True):
         np.save(tmp / name, arr, allow_pickle=False)
-    entries = {
-        "labels": db.labels, "episodes": db.episodes, "tasks": db.tasks,
-        "starts": db.starts, "ends": db.ends,
-    }
-    (tmp / _ENTRIES).write_text(json.dumps(entries))
-    if db.frames:
-        names = sorted(db.frames)
-        np.savez(tmp / _FRAMES, **{f"f{i}": db.frames[n] for i, n in enumerate(names)})
-    (tmp / MANIFEST).write_text(json.dumps(make_manifest(db, tmp), indent=2))
+    (tmp / _ENTRIES).write_text(json.dumps(dict(entries)))
+    if frames:
+        names = sorted(frames)
+        np.savez(tmp / _FRAMES, **{f"f{i}": frames[n] for i, n in enumerate(names)})
+    manifest = make_manifest(tmp, meta, frame_dim, len(arrays[0]), list(frames))
+    (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2))
 
 
 def record_calibration(directory: Path, calibration: dict[str, Any]) -> Path:

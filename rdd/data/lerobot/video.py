@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from rdd.data.frames import file_digest
-from rdd.data.lerobot_dataset import _need
+from rdd.data.lerobot.dataset import need
 
 
 class VideoFrames:
@@ -57,7 +57,7 @@ class VideoFrames:
         Only frames within the tolerance of a wanted timestamp are converted to arrays. A wanted
         timestamp without such a frame is a ValueError, raised after the pass (it counts them all).
         """
-        av = _need("av")
+        av = need("av")
         tol = self.tolerance_s
         best_gap = np.full(wanted.shape, np.inf)
         best: list[np.ndarray | None] = [None] * len(wanted)

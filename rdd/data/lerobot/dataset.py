@@ -14,11 +14,11 @@ from typing import Any
 
 import numpy as np
 
-from rdd.data.lerobot_checks import check_info
+from rdd.data.lerobot.checks import check_info
 from rdd.errors import InputError
 
 
-def _need(module: str, extra: str = "data"):
+def need(module: str, extra: str = "data"):
     try:
         return __import__(module)
     except ImportError as exc:
@@ -27,9 +27,9 @@ def _need(module: str, extra: str = "data"):
         ) from exc
 
 
-def _column(table, name: str, source: Path) -> np.ndarray:
+def column(table, name: str, source: Path) -> np.ndarray:
     """A parquet column as a numpy array ((N,) or (N, D) for list columns)."""
-    pa = _need("pyarrow")
+    pa = need("pyarrow")
     if name not in table.column_names:
         raise KeyError(f"{source}: no column {name!r}; columns: {table.column_names}")
     col = table.column(name).combine_chunks()
@@ -85,7 +85,7 @@ class LeRobotDataset:
                         raise InputError(f"{path}:{n}: bad episode record ({exc})") from exc
                     self.episode_meta_file[int(row["episode_index"])] = path
             return out
-        _need("pyarrow")
+        need("pyarrow")
         import pyarrow.parquet as pq
 
         files = sorted((self.root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))

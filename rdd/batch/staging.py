@@ -11,7 +11,7 @@ the output is written. Episodes are read, worked on and released one at a time.
 ``--workers N`` runs the episodes in N processes on this machine (spawned: each builds its own
 components from the command's arguments, with cores // N torch threads), each taking the next
 episode as it finishes one; one bar counts the whole job. ``--executor ray`` runs the same step
-function as tasks on a Ray cluster instead (``rdd.cli.ray_executor``).
+function as tasks on a Ray cluster instead (``rdd.batch.ray_executor``).
 """
 
 from __future__ import annotations
@@ -29,7 +29,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rdd.cli.common import CLIError
 from rdd.data.episode import Episode
 from rdd.progress import EpisodeBar, show_progress
 
@@ -50,34 +49,6 @@ def settings_hash(args: argparse.Namespace, **extra: Any) -> str:
     components made of them: a database's fingerprint, an encoder's weights)."""
     fields = {k: v for k, v in vars(args).items() if k not in NOT_SETTINGS}
     return digest({"args": fields, **extra})
-
-
-def add_workers_arg(p: argparse.ArgumentParser) -> None:
-    """``--workers N``, ``--executor``, ``--ray-address``."""
-    p.add_argument("--workers", type=int, default=1, metavar="N",
-                   help="processes working on episodes at once (default 1; each gets cores/N torch threads; "
-                        "with --executor ray, Ray actors of one CPU each)")
-    p.add_argument("--executor", choices=("local", "ray"), default="local",
-                   help="where episodes are worked on: local = processes on this machine; ray = tasks on a Ray "
-                        "cluster, the components sent once, the same results (needs: make install-cluster; "
-                        "--data readable at the same path on every node)")
-    p.add_argument("--ray-address", metavar="ADDRESS",
-                   help="--executor ray: the cluster to join (auto = the one this node belongs to, "
-                        "ray://HEAD:10001); default a local cluster of --workers CPUs started for the job")
-
-
-def check_workers(n: int, args: argparse.Namespace | None = None) -> int:
-    """``--workers`` as given, refused below 1; with ``args``, ``--ray-address`` only with ``--executor ray``
-    and Ray installed for it."""
-    if n < 1:
-        raise CLIError(f"--workers {n}: must be >= 1")
-    if args is not None and getattr(args, "ray_address", None) is not None and args.executor != "ray":
-        raise CLIError(f"--ray-address {args.ray_address}: needs --executor ray")
-    if args is not None and getattr(args, "executor", "local") == "ray":
-        from rdd.cli.ray_executor import import_ray
-
-        import_ray()  # before any work: the missing extra is a one-line error naming the install line
-    return n
 
 
 def parts_folder(out: Path) -> Path:
@@ -120,7 +91,7 @@ def cores() -> int:
         return os.cpu_count() or 1
 
 
-def _set_torch_threads(n: int) -> None:
+def set_torch_threads(n: int) -> None:
     if "torch" in sys.modules:  # torch only when a component uses it (encoders)
         sys.modules["torch"].set_num_threads(n)
 
@@ -128,9 +99,9 @@ def _set_torch_threads(n: int) -> None:
 def _worker_init(factory: Callable[..., Any], factory_args: tuple, threads: int) -> None:
     global _STATE
     show_progress(False)  # the parent draws the one bar
-    _set_torch_threads(threads)
+    set_torch_threads(threads)
     _STATE = factory(*factory_args)
-    _set_torch_threads(threads)
+    set_torch_threads(threads)
 
 
 def _worker_step(step: Step, path: Path, episode: Episode, payload: Any) -> float:
@@ -155,7 +126,7 @@ def run_staged(items: Sequence[tuple[Path, Episode, Any]], step: Step, desc: str
     total = sum(int(ep.num_frames) for _, ep, _ in items)
     with EpisodeBar(desc, len(items), total, done=len(items) - len(todo), done_frames=done_frames) as bar:
         if executor == "ray" and todo:
-            from rdd.cli.ray_executor import run_on_ray
+            from rdd.batch.ray_executor import run_on_ray
 
             run_on_ray(todo, step, bar, workers=workers, state=state, address=address)
             return

@@ -1,4 +1,4 @@
-"""``--executor ray``: the per-episode work of ``rdd.cli.staging`` run as tasks on a Ray cluster.
+"""``--executor ray``: the per-episode work of ``rdd.batch.staging`` run as tasks on a Ray cluster.
 
 The parent builds the command's components once (database, encoder, labeler) and puts them in
 Ray's object store once; ``--workers N`` actors each take them from there and run the same step
@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from rdd.atomic import write_bytes_atomic
-from rdd.cli.common import CLIError
 from rdd.data.episode import Episode
+from rdd.errors import UsageError
 from rdd.progress import EpisodeBar
 
 INSTALL = "make install-cluster (pip install -c constraints.txt -e '.[cluster]')"
@@ -38,7 +38,7 @@ def import_ray():
     try:
         import ray
     except ImportError as exc:
-        raise CLIError(f"--executor ray needs Ray: {INSTALL}") from exc
+        raise UsageError(f"--executor ray needs Ray: {INSTALL}") from exc
     return ray
 
 
@@ -52,7 +52,7 @@ def _init(ray, workers: int, address: str | None) -> bool:
     try:
         ray.init(**options)
     except (ConnectionError, RuntimeError, ValueError) as exc:
-        raise CLIError(f"--ray-address {address}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") \
+        raise UsageError(f"--ray-address {address}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") \
             from exc
     return True
 

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from rdd.data.episode import Episode
-from rdd.database import SubtaskDatabase
+from rdd.database.model import SubtaskDatabase
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import episode_frame_vectors
 from rdd.index import load_index

@@ -18,6 +18,7 @@ missing are left out of the copy and counted in ``total_episodes`` no more. Ever
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
@@ -25,9 +26,8 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from rdd.atomic import write_text_atomic
-from rdd.data.lerobot_dataset import LeRobotDataset, _need
-from rdd.data.lerobot_write import _link_or_copy
+from rdd.atomic import atomic_path, write_text_atomic
+from rdd.data.lerobot.dataset import LeRobotDataset, need
 
 log = logging.getLogger(__name__)
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
@@ -51,10 +51,29 @@ def _episode_stats(ds: LeRobotDataset) -> dict[int, dict[str, Any]]:
     return out
 
 
+# Encoded media, which tools replace rather than edit: safe to hard-link into a copy.
+IMMUTABLE_SUFFIXES = frozenset({".mp4", ".mkv", ".webm", ".avi", ".mov", ".png", ".jpg", ".jpeg"})
+
+
+def link_or_copy(src: Path, dst: Path, link: bool) -> None:
+    """Hard-link ``src`` to ``dst`` when ``link`` and it is immutable media (else, or failing, copy)."""
+    with atomic_path(dst) as tmp:  # a file of the copy is there whole or not at all (resuming trusts it)
+        if link and src.suffix.lower() in IMMUTABLE_SUFFIXES:
+            tmp.unlink()
+            try:
+                os.link(src, tmp)
+                return
+            except OSError as exc:
+                if exc.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK, errno.ENOTSUP, errno.EACCES):
+                    raise
+        shutil.copyfile(src, tmp)
+        shutil.copymode(src, tmp)
+
+
 def convert_to_v30(source: str | Path | LeRobotDataset, out: str | Path, link: bool = True,
                    data_files_size_in_mb: float = 100.0) -> Path:
     """Write ``out`` (a new folder), the v3.0 layout of the v2.1 dataset at ``source``; returns ``out``."""
-    pa = _need("pyarrow")
+    pa = need("pyarrow")
     import pyarrow.parquet as pq
 
     ds = source if isinstance(source, LeRobotDataset) else LeRobotDataset(source)
@@ -105,7 +124,7 @@ def convert_to_v30(source: str | Path | LeRobotDataset, out: str | Path, link: b
             if not src.is_file():
                 raise FileNotFoundError(f"{ds.root}: video for episode {ep}, camera {key!r} is missing: {src}")
             chunk = video_index // chunks
-            _link_or_copy(src, out / VIDEO_PATH.format(video_key=key, chunk_index=chunk, file_index=video_index),
+            link_or_copy(src, out / VIDEO_PATH.format(video_key=key, chunk_index=chunk, file_index=video_index),
                           link)
             row.update({f"videos/{key}/chunk_index": chunk, f"videos/{key}/file_index": video_index,
                         f"videos/{key}/from_timestamp": 0.0,
@@ -132,7 +151,7 @@ def convert_to_v30(source: str | Path | LeRobotDataset, out: str | Path, link: b
 
 def _write_tasks(ds: LeRobotDataset, path: Path) -> None:
     """``meta/tasks.parquet``: ``task_index`` with the task strings as the (pandas) index, as LeRobot writes it."""
-    pa = _need("pyarrow")
+    pa = need("pyarrow")
     import pyarrow.parquet as pq
 
     items = sorted(ds.tasks.items())

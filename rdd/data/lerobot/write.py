@@ -24,10 +24,8 @@ image frames), are hard-linked when ``link`` is true and the filesystem allows i
 from __future__ import annotations
 
 import contextlib
-import errno
 import json
 import os
-import shutil
 import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -36,20 +34,20 @@ from typing import Any
 import numpy as np
 
 from rdd.atomic import TargetExistsError, atomic_dir, atomic_path, write_text_atomic
-from rdd.data.lerobot_dataset import LeRobotDataset, _column, _need
-from rdd.data.lerobot_language import LANGUAGE_EVENTS, LANGUAGE_PERSISTENT
+from rdd.data.lerobot.convert import convert_to_v30, link_or_copy
+from rdd.data.lerobot.dataset import LeRobotDataset, column, need
+from rdd.data.lerobot.language import LANGUAGE_EVENTS, LANGUAGE_PERSISTENT
 from rdd.segments import Segment, validate_segments
 
 LANGUAGE_FEATURE = {"dtype": "language", "shape": [1], "names": None}
 SUBTASK_STYLE = "subtask"
 # Files the copy may share with the source (hard links): encoded media, rewritten whole or not at
 # all. Everything else is copied, so editing the copy can never edit the source.
-IMMUTABLE_SUFFIXES = frozenset({".mp4", ".mkv", ".webm", ".avi", ".mov", ".png", ".jpg", ".jpeg"})
 
 
 def _message_list_type(with_timestamp: bool):
     """A list of LeRobot message rows; the two language columns differ only in the timestamp field."""
-    pa = _need("pyarrow")
+    pa = need("pyarrow")
     fields = [
         pa.field("role", pa.string(), nullable=False),
         pa.field("content", pa.string()),
@@ -119,13 +117,13 @@ def _hf_metadata(metadata: dict[bytes, bytes] | None) -> dict[bytes, bytes] | No
 def _rewrite_data_file(src: Path, dst: Path, new_rows: Mapping[int, list[dict[str, Any]]],
                        file_episode: int | None) -> list[int]:
     """Copy parquet ``src`` to ``dst`` with the two language columns; returns the episodes it holds."""
-    pa = _need("pyarrow")
+    pa = need("pyarrow")
     import pyarrow.parquet as pq
 
     table = pq.read_table(src)
     n = table.num_rows
     if "episode_index" in table.column_names:
-        episodes = _column(table, "episode_index", src).astype(np.int64)
+        episodes = column(table, "episode_index", src).astype(np.int64)
     elif file_episode is not None:
         episodes = np.full(n, file_episode, dtype=np.int64)
     else:
@@ -168,22 +166,7 @@ def _episodes_in(path: Path, file_episode: int | None) -> list[int]:
     if "episode_index" not in pq.read_schema(path).names:
         return [] if file_episode is None else [file_episode]
     table = pq.read_table(path, columns=["episode_index"])
-    return sorted(set(_column(table, "episode_index", path).astype(np.int64).tolist()))
-
-
-def _link_or_copy(src: Path, dst: Path, link: bool) -> None:
-    """Hard-link ``src`` to ``dst`` when ``link`` and it is immutable media (else, or failing, copy)."""
-    with atomic_path(dst) as tmp:  # a file of the copy is there whole or not at all (resuming trusts it)
-        if link and src.suffix.lower() in IMMUTABLE_SUFFIXES:
-            tmp.unlink()
-            try:
-                os.link(src, tmp)
-                return
-            except OSError as exc:
-                if exc.errno not in (errno.EXDEV, errno.EPERM, errno.EMLINK, errno.ENOTSUP, errno.EACCES):
-                    raise
-        shutil.copyfile(src, tmp)
-        shutil.copymode(src, tmp)
+    return sorted(set(column(table, "episode_index", path).astype(np.int64).tolist()))
 
 
 @contextlib.contextmanager
@@ -224,9 +207,9 @@ def write_subtasks(
     built in a temporary folder and a stopped run leaves nothing.
 
     ``version``: the copy's layout, "v2.1" or "v3.0" (None: the source's). A v2.1 source is first
-    laid out as v3.0 (:func:`rdd.data.lerobot_convert.convert_to_v30`) in a temporary folder beside
+    laid out as v3.0 (:func:`rdd.data.lerobot.convert.convert_to_v30`) in a temporary folder beside
     OUT; a v3.0 source cannot be written as v2.1."""
-    _need("pyarrow")
+    need("pyarrow")
     ds = LeRobotDataset(source)
     src_root, out = ds.root.resolve(), Path(out)
     target = out.resolve()
@@ -237,8 +220,6 @@ def write_subtasks(
     if version is not None and version != ds.version:
         if ds.version == "v3.0":
             raise ValueError(f"{ds.root} is a v3.0 dataset; its copy cannot be written as {version}")
-        from rdd.data.lerobot_convert import convert_to_v30
-
         if out.exists():
             raise TargetExistsError(f"{out} already exists (refusing to replace it)")
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -265,12 +246,12 @@ def write_subtasks(
         table = pq.read_table(path, columns=[c for c in ("episode_index", "frame_index", "timestamp")
                                               if c in pq.read_schema(path).names])
         if "episode_index" in table.column_names:
-            table = table.filter(_column(table, "episode_index", path) == ep)
+            table = table.filter(column(table, "episode_index", path) == ep)
         if "frame_index" in table.column_names:
-            table = table.take(np.argsort(_column(table, "frame_index", path), kind="stable"))
+            table = table.take(np.argsort(column(table, "frame_index", path), kind="stable"))
         if "timestamp" not in table.column_names:
             raise ValueError(f"{path}: no column 'timestamp' (sub-task rows are stamped with frame timestamps)")
-        ts = _column(table, "timestamp", path).astype(np.float32)
+        ts = column(table, "timestamp", path).astype(np.float32)
         rows[int(ep)] = subtask_rows(segments, instructions, ts, f"{path} (episode {ep})")
     written: set[int] = set()
     building = atomic_dir(out) if staging is None else _resumable_dir(Path(staging), out)
@@ -293,7 +274,7 @@ def write_subtasks(
                                         LANGUAGE_EVENTS: dict(LANGUAGE_FEATURE)}
                     write_text_atomic(dst, json.dumps(info, indent=4, ensure_ascii=False) + "\n")
                 else:
-                    _link_or_copy(src, dst, link)
+                    link_or_copy(src, dst, link)
         lost = sorted(set(rows) - written)
         if lost:
             raise ValueError(f"{ds.root}: the data files hold no rows of episodes {lost}")

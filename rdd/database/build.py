@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from rdd.data.episode import Episode
-from rdd.database_store import PER_ENTRY
+from rdd.database.store import PER_ENTRY
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import episode_frame_vectors
 from rdd.segments import Segment, validate_segments
@@ -27,7 +27,7 @@ def segment_entries(
 ) -> Entries:
     """Begin and end frame vectors, durations, instructions and per-entry provenance of every
     segment of ``episodes``, and the whole frame vectors of those in ``keep_frames``
-    (the arguments of :meth:`rdd.database.SubtaskDatabase.build`)."""
+    (the arguments of :meth:`rdd.database.model.SubtaskDatabase.build`)."""
     if segmentations is not None and len(segmentations) != len(episodes):
         raise ValueError(
             f"{len(segmentations)} segmentations given for {len(episodes)} episodes"

@@ -10,7 +10,7 @@ import numpy as np
 
 from rdd.atomic import atomic_file
 from rdd.data.episode import Episode
-from rdd.plot_signals import draw_signals, has_signals
+from rdd.plots.signals import draw_signals, has_signals
 from rdd.segments import Segment, validate_segments
 
 FIGURE_FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg"}

@@ -21,12 +21,12 @@ from typing import Any
 
 import numpy as np
 
-from rdd import scoring
-from rdd.database import DatabaseError, SubtaskDatabase
+from rdd.core import scoring
+from rdd.core.solver import candidate_intervals, max_sum_partition_dense
+from rdd.database.model import DatabaseError, SubtaskDatabase
 from rdd.errors import InputError
 from rdd.index import load_index
 from rdd.metrics import miou
-from rdd.solver import candidate_intervals, max_sum_partition_dense
 
 log = logging.getLogger(__name__)
 

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rdd.milestones import uvd_previous_milestones_all
+from rdd.core.milestones import uvd_previous_milestones_all
 
 
 def _as_index_array(x, name: str) -> np.ndarray:

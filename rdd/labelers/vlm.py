@@ -2,10 +2,10 @@
 
 For a segment ``[start, end)`` it shows the model ``frames`` evenly spaced frames of the segment
 (first and last included) of every view the episode has, or of the one chosen by ``view``, and asks
-for one short imperative instruction. The model is reached through ``rdd.vlm_backends``, the
+for one short imperative instruction. The model is reached through ``rdd.labelers.vlm_backends``, the
 backends the VLM decomposer uses: an OpenAI-compatible chat-completions endpoint or a local
 transformers checkpoint. A failed call (unreachable endpoint, HTTP error, malformed payload) and an
-answer that is empty or not one short instruction are :class:`~rdd.vlm_backends.VLMError`, one line
+answer that is empty or not one short instruction are :class:`~rdd.labelers.vlm_backends.VLMError`, one line
 naming the endpoint and the segment; nothing is guessed in its place.
 """
 
@@ -19,8 +19,7 @@ import numpy as np
 from rdd.checks import check_options, whole
 from rdd.data.episode import Episode
 from rdd.errors import InputError
-from rdd.segments import Segment
-from rdd.vlm_backends import (
+from rdd.labelers.vlm_backends import (
     VLMBackend,
     VLMError,
     check_backend_options,
@@ -28,6 +27,7 @@ from rdd.vlm_backends import (
     resize_max_side,
     subsample_indices,
 )
+from rdd.segments import Segment
 
 PROMPT = (
     "A robot is doing the task: {goal}. "

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from rdd.data.episode import Episode
-from rdd.hand_events import smoothed_speed
+from rdd.data.hand_events import smoothed_speed
 
 
 def episode_signals(episode: Episode) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:

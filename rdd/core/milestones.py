@@ -2,7 +2,7 @@
 
 Matches the official ``embedding_decomp`` of zcczhang/UVD with its default "embed" settings
 (kernel smoothing, strict local maxima, ``min_interval`` spacing); read there, written anew here.
-Used by the UVD decomposer (``rdd.decomposers.uvd``) and by RDD's OOD prior (``rdd.scoring``).
+Used by the UVD decomposer (``rdd.decomposers.uvd``) and by RDD's OOD prior (``rdd.core.scoring``).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Signals labeler: names what the robot's own signals show in an interval, with no model and no annotation.
 
-A segment is named by the hand state changes whose midpoint falls in it (``rdd.hand_events``:
+A segment is named by the hand state changes whose midpoint falls in it (``rdd.data.hand_events``:
 "right hand closes", "left hand opens"; "gripper" for a single unnamed one) and by the arms that
 move for at least half of its frames ("right arm moves", "both arms move"; "arm moves" when the
 joints have no side). A segment where nothing moves is "hold still". The default labeller of
@@ -15,7 +15,7 @@ import numpy as np
 
 from rdd.checks import check_options, number
 from rdd.data.episode import Episode
-from rdd.hand_events import HandMove, arm_moving, episode_moves, smoothed_speed
+from rdd.data.hand_events import HandMove, arm_moving, episode_moves, smoothed_speed
 from rdd.segments import Segment
 
 OPTION_RULES = {"hand_delta": number(0.0, exclusive_min=True), "moving_fraction": number(0.0, 1.0),

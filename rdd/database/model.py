@@ -1,6 +1,6 @@
 """The sub-task vector database: begin/end frame vectors of expert-labelled training sub-tasks.
 
-Saved as a directory written whole (its layout: :mod:`rdd.database_store`).
+Saved as a directory written whole (its layout: :mod:`rdd.database.store`).
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import numpy as np
 
 from rdd.atomic import atomic_dir
 from rdd.data.episode import Episode
-from rdd.database_build import Entries, segment_entries
-from rdd.database_store import (
+from rdd.database.build import Entries, segment_entries
+from rdd.database.store import (
     PER_ENTRY,
     DatabaseError,
     read_files,
@@ -149,8 +149,8 @@ class SubtaskDatabase:
     @classmethod
     def from_entries(cls, entries: Entries, encoder: Encoder, views: Sequence[str] = DEFAULT_VIEWS,
                      normalize_views: bool = True) -> SubtaskDatabase:
-        """The database of :func:`rdd.database_build.segment_entries`' result (of :meth:`build`, or
-        of episodes embedded apart and joined by :func:`rdd.database_build.merge_entries`)."""
+        """The database of :func:`rdd.database.build.segment_entries`' result (of :meth:`build`, or
+        of episodes embedded apart and joined by :func:`rdd.database.build.merge_entries`)."""
         begin, end, durations, labels, meta_lists, frames = entries
         if not begin:
             raise ValueError("no segments to build a database from (no episodes given)")
@@ -256,7 +256,7 @@ class SubtaskDatabase:
                 )
 
     def calibrated_options(self) -> dict[str, Any]:
-        """``alpha``, ``min_len``, ``max_len`` chosen by the stored calibration (``rdd.calibrate``)."""
+        """``alpha``, ``min_len``, ``max_len`` chosen by the stored calibration (``rdd.core.calibrate``)."""
         cal = self.meta.get("calibration")
         if not cal or not isinstance(cal.get("chosen"), dict):
             where = self.directory or "this database"
@@ -283,7 +283,10 @@ class SubtaskDatabase:
         """
         out = Path(directory)
         with atomic_dir(out, overwrite=overwrite) as tmp:
-            write_files(self, tmp)
+            write_files(tmp, (self.begin, self.end, self.durations),
+                        {"labels": self.labels, "episodes": self.episodes, "tasks": self.tasks,
+                         "starts": self.starts, "ends": self.ends},
+                        self.frames, self.meta, self.frame_dim)
         self.directory = out
         return out
 

@@ -1,13 +1,13 @@
 """LeRobot datasets (format v2.1 and v3.0) from a local folder: parquet via pyarrow, video via PyAV.
 
-The folder layout of each version is :mod:`rdd.data.lerobot_dataset`'s; frames are decoded on
-demand (:mod:`rdd.data.lerobot_video`).
+The folder layout of each version is :mod:`rdd.data.lerobot.dataset`'s; frames are decoded on
+demand (:mod:`rdd.data.lerobot.video`).
 
 Camera keys and the gripper signal are options (:data:`READER_OPTIONS`). When ``info.json`` names
 the state dims, the arm joints and the gripper/hand dims (names with gripper, hand or finger; one
 group per side) are inferred from the names; datasets without a gripper flag (e.g. dexterous
 hands) derive one per hand by thresholding the mean of its dims. Sub-tasks written by LeRobot's
-annotation tools (or ``rdd.data.lerobot_write``) are read from the ``language_persistent`` column.
+annotation tools (or ``rdd.data.lerobot.write``) are read from the ``language_persistent`` column.
 """
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ from typing import Any
 import numpy as np
 
 from rdd.data.episode import Episode
-from rdd.data.lerobot_checks import check_finite, check_length, check_timestamps
-from rdd.data.lerobot_dataset import LeRobotDataset, _column, _need
-from rdd.data.lerobot_language import read_subtasks
-from rdd.data.lerobot_layout import (
+from rdd.data.lerobot.checks import check_finite, check_length, check_timestamps
+from rdd.data.lerobot.dataset import LeRobotDataset, column, need
+from rdd.data.lerobot.language import read_subtasks
+from rdd.data.lerobot.layout import (
     arm_sides,
     feature_names,
     finger_levels,
@@ -31,7 +31,7 @@ from rdd.data.lerobot_layout import (
     hand_levels,
     infer_layout,
 )
-from rdd.data.lerobot_video import VideoFrames
+from rdd.data.lerobot.video import VideoFrames
 
 log = logging.getLogger(__name__)
 IMAGE_PREFIX = "observation.images."
@@ -114,7 +114,7 @@ def load_episode(
     """One episode: frames per camera (view name = key without ``observation.images.``), arm joint
     positions and velocities (finite differences x fps), a gripper flag, and the sub-tasks of its
     ``language_persistent`` column as ``segments``/``instructions``. Options: :data:`READER_OPTIONS`."""
-    _need("pyarrow")
+    need("pyarrow")
     import pyarrow.parquet as pq
 
     ds = dataset if isinstance(dataset, LeRobotDataset) else LeRobotDataset(dataset)
@@ -129,18 +129,18 @@ def load_episode(
         )
     table = pq.read_table(data_path)
     if "episode_index" in table.column_names:
-        mask = _column(table, "episode_index", data_path) == ep
+        mask = column(table, "episode_index", data_path) == ep
         if not mask.any():
             raise ValueError(f"{data_path}: holds no rows of episode {ep}")
         table = table.filter(mask)
     if "frame_index" in table.column_names:
-        order = np.argsort(_column(table, "frame_index", data_path), kind="stable")
+        order = np.argsort(column(table, "frame_index", data_path), kind="stable")
         table = table.take(order)
     n = table.num_rows
     where = f"{data_path} (episode {ep})"
     check_length(n, ds.episodes[ep], where, ds.episode_meta_file.get(ep, ds.root / "meta"))
     if "timestamp" in table.column_names:
-        timestamps = _column(table, "timestamp", data_path).astype(np.float64)
+        timestamps = column(table, "timestamp", data_path).astype(np.float64)
         check_timestamps(timestamps, ds.fps, where, ds.info_path)
     else:
         timestamps = np.arange(n) / ds.fps
@@ -162,7 +162,7 @@ def load_episode(
     arms: dict[str, list[int]] = {}
     levels = None
     if state_key in table.column_names:
-        state = _column(table, state_key, data_path).astype(np.float64)
+        state = column(table, state_key, data_path).astype(np.float64)
         state = state if state.ndim == 2 else state[:, None]
         check_finite(state, where, state_key)
         if joint_indices is None and state_names is not None and len(state_names) == state.shape[1]:
@@ -201,7 +201,7 @@ def load_episode(
         elif gripper_key is not None:
             if key not in table.column_names:
                 raise KeyError(f"{data_path}: no column {key!r} (reader option gripper_key)")
-            width = _column(table, key, data_path).reshape(n, -1).shape[1]
+            width = column(table, key, data_path).reshape(n, -1).shape[1]
             if width > 1:
                 raise ValueError(
                     f"reader option gripper_key={key!r}: the column has {width} dims and info.json names "
@@ -213,7 +213,7 @@ def load_episode(
     if groups is not None:
         if source_key not in table.column_names:
             raise KeyError(f"{data_path}: no column {source_key!r} (reader option gripper_key)")
-        values = _column(table, source_key, data_path).astype(np.float64)
+        values = column(table, source_key, data_path).astype(np.float64)
         check_finite(values, where, source_key)
         levels = hand_levels(values, groups, f"{data_path}:{source_key}")
         names = feature_names(ds.info, source_key)
@@ -234,7 +234,7 @@ def load_episode(
     meta = ds.episodes[ep]
     tasks = meta.get("tasks") or []
     if not tasks and "task_index" in table.column_names:
-        tasks = [ds.tasks.get(int(_column(table, "task_index", data_path)[0]), "")]
+        tasks = [ds.tasks.get(int(column(table, "task_index", data_path)[0]), "")]
     goal = str(tasks[0]) if tasks else ""
     return Episode(
         name=episode_name(ep),
