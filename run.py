@@ -1,6 +1,6 @@
 """Entry point of the harness: ``python run.py [group=option ...]``, ``python run.py -m ...`` for sweeps.
 
-Thin on purpose: Hydra composes the config, ``experiments.pipeline.run`` does the work and returns
+Thin on purpose: Hydra composes the config, ``experiments.run.pipeline.run`` does the work and returns
 its summary; the main metric (average success, or mIoU for decomposition-only runs) is returned so
 sweepers can use it. Bad input (a config value, an unwritable output folder) is one line and exit
 status 2; Ctrl-C and SIGTERM are one line after the cleanups, exit 130 and 143.
@@ -17,8 +17,8 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-import experiments.schemas  # noqa: F401  (registers the typed schema `base_config`)
-from experiments.interrupts import run_stoppable
+import experiments.config.schemas  # noqa: F401  (registers the typed schema `base_config`)
+from experiments.run.interrupts import run_stoppable
 from rdd.errors import InputError
 
 log = logging.getLogger("run")
@@ -28,7 +28,7 @@ CHECKOUT = str(Path(__file__).resolve().parent)
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 def main(cfg: DictConfig) -> float | None:
     """Run one configuration and return its main metric."""
-    from experiments.pipeline import run
+    from experiments.run.pipeline import run
 
     try:
         summary = run(cfg)
@@ -87,7 +87,7 @@ def _output_dir() -> str:
 
 if __name__ == "__main__":
     if "--help" in sys.argv[1:] or "-h" in sys.argv[1:]:
-        from experiments.run_help import help_text
+        from experiments.config.run_help import help_text
 
         print(help_text())
         sys.exit(0)

@@ -5,7 +5,7 @@
   Avg. Rank +/- std (methods ranked per task and seed, ties share the mean rank), one column per task;
 - an mIoU table (decomposition against the expert on the validation demonstrations);
 - paired differences of each method's average success to a reference method (rdd by default) with
-  95% bootstrap intervals over the shared seeded episodes (``experiments.stats``);
+  95% bootstrap intervals over the shared seeded episodes (``experiments.report.stats``);
 - a planner table (mode=planner_eval runs): next-instruction exact match, base and finetuned;
 - a solver-speed table (mode=speed runs);
 - PNG plots: success per task and method, and solver time versus frames.
@@ -21,16 +21,16 @@ from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
 
-from experiments.plots import plot_speed, plot_success
-from experiments.results import RunRecord, assign_labels, load_runs
-from experiments.table_builders import (
+from experiments.report.plots import plot_speed, plot_success
+from experiments.report.results import RunRecord, assign_labels, load_runs
+from experiments.report.table_builders import (
     miou_table,
     paired_table,
     planner_table,
     speed_table,
     success_table,
 )
-from experiments.table_format import Table
+from experiments.report.table_format import Table
 from rdd.atomic import write_text_atomic
 
 

@@ -11,7 +11,7 @@ one module (plus, for the harness, one ``conf/<group>/<option>.yaml`` whose ``_t
 A component is called with its options (keyword arguments: the CLI's ``--option``, a config's keys)
 and the *runtime objects* it takes (:data:`RUNTIME_OBJECTS`): what exists only once a run has made
 it, each under one name, passed to exactly the components with a parameter of that name
-(:func:`construct`; the harness's ``experiments.instantiate`` and the CLI both call it).
+(:func:`construct`; the harness's ``experiments.config.instantiate`` and the CLI both call it).
 """
 
 from __future__ import annotations

@@ -12,10 +12,10 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
-import experiments.schemas  # noqa: F401  (registers base_config)
-from experiments.pipeline import run
-from experiments.schemas import RANGE, RunConfig
-from experiments.validate import ConfigError, validate_config
+import experiments.config.schemas  # noqa: F401  (registers base_config)
+from experiments.config.schemas import RANGE, RunConfig
+from experiments.config.validate import ConfigError, validate_config
+from experiments.run.pipeline import run
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 

@@ -10,7 +10,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
-import experiments.schemas  # noqa: F401  (registers base_config)
+import experiments.config.schemas  # noqa: F401  (registers base_config)
 
 pytest.importorskip("pybullet")
 
@@ -21,8 +21,8 @@ SMALL = ["experiment=smoke", "threads=1", "mode=decompose", "data.train_episodes
 
 
 def _decompose(decomposer: str, cache: Path, out: Path) -> dict:
-    from experiments.pipeline import run
-    from experiments.stages import read_json
+    from experiments.cache.store import read_json
+    from experiments.run.pipeline import run
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="config",

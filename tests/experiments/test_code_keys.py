@@ -5,8 +5,14 @@ from pathlib import Path
 
 import pytest
 
-from experiments.code_keys import STAGE_BUILDERS, closure, code_key, stage_code_key, target_modules
-from experiments.stages import StageCache, spec_key
+from experiments.cache.code_keys import (
+    STAGE_BUILDERS,
+    closure,
+    code_key,
+    stage_code_key,
+    target_modules,
+)
+from experiments.cache.store import StageCache, spec_key
 
 
 def _write(root: Path, files: dict[str, str]) -> None:
@@ -41,18 +47,18 @@ def test_closure_follows_lazy_imports_and_only_this_repository(tmp_path: Path):
 
 def test_the_facade_is_followed_per_function(tmp_path: Path):
     _write(tmp_path, {
-        "experiments/components.py": (
+        "experiments/run/components.py": (
             "FILE = 'x.json'\n\n"
             "def helper():\n    from rdd.b import x\n    return FILE\n\n"
             "def used():\n    return helper()\n\n"
             "def other():\n    from rdd.c import y\n"),
-        "experiments/evaluation.py": "from experiments import components as comp\n\ndef run():\n    comp.used()\n",
+        "experiments/run/evaluation.py": "from experiments.run import components as comp\n\ndef run():\n    comp.used()\n",
         "rdd/b.py": "x = 1\n", "rdd/c.py": "y = 1\n",
     })
-    assert _names(["experiments.evaluation"], tmp_path) == [
-        "experiments/components.py:FILE", "experiments/components.py:helper",
-        "experiments/components.py:used", "experiments/evaluation.py", "rdd/b.py"]
-    assert _names(["other"], tmp_path) == ["experiments/components.py:other", "rdd/c.py"]
+    assert _names(["experiments.run.evaluation"], tmp_path) == [
+        "experiments/run/components.py:FILE", "experiments/run/components.py:helper",
+        "experiments/run/components.py:used", "experiments/run/evaluation.py", "rdd/b.py"]
+    assert _names(["other"], tmp_path) == ["experiments/run/components.py:other", "rdd/c.py"]
     with pytest.raises(ValueError, match="defines no 'missing'"):
         _names(["missing"], tmp_path)
     closure.cache_clear()

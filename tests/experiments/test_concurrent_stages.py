@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-import experiments.schemas  # noqa: F401  (registers base_config)
-from experiments.locks import FileLock
-from experiments.stages import SPEC_FILE, StageCache, spec_key
+import experiments.config.schemas  # noqa: F401  (registers base_config)
+from experiments.cache.locks import FileLock
+from experiments.cache.store import SPEC_FILE, StageCache, spec_key
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 
@@ -52,7 +52,7 @@ def test_get_or_build_without_waiting_leaves_a_busy_entry_to_its_builder(tmp_pat
 
 def test_labelled_set_makes_the_free_tasks_demos_while_another_job_makes_one(tmp_path: Path):
     pytest.importorskip("pybullet")
-    from experiments.graph import Run
+    from experiments.run.graph import Run
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="config",
@@ -77,7 +77,7 @@ def test_labelled_set_makes_the_free_tasks_demos_while_another_job_makes_one(tmp
 
 
 def test_each_free_first_takes_free_items_then_waits_for_busy_ones():
-    from experiments.graph import each_free_first
+    from experiments.run.graph import each_free_first
 
     calls = []
 
@@ -95,7 +95,7 @@ def test_each_free_first_takes_free_items_then_waits_for_busy_ones():
 
 def test_database_parts_are_built_per_task_while_another_job_holds_one(tmp_path: Path):
     pytest.importorskip("pybullet")
-    from experiments.graph import Run
+    from experiments.run.graph import Run
     from rdd.database.model import SubtaskDatabase
 
     busy, free = "open_drawer", "turn_tap"

@@ -11,8 +11,8 @@ from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
-import experiments.schemas  # noqa: F401  (registers base_config)
-from experiments.instantiate import RUNTIME_OBJECTS, instantiate_component, runtime_names
+import experiments.config.schemas  # noqa: F401  (registers base_config)
+from experiments.config.instantiate import RUNTIME_OBJECTS, instantiate_component, runtime_names
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 GROUPS = ("env", "encoder", "index", "decomposer", "labeler", "policy", "planner")
@@ -50,14 +50,14 @@ def runtime():
     return {"encoder": enc, "database": db, "cache": None}
 
 
-# What the pipeline's call sites pass besides runtime objects (experiments/components.py, pipeline.py).
+# What the pipeline's call sites pass besides runtime objects (experiments/run/components.py, pipeline.py).
 CALL_SITE = {"env": {"task": "open_drawer"},
              "planner": {"plans": {"open_drawer": {0: ["reach for the top drawer handle"]}}}}
 
 
 @pytest.mark.parametrize("group,option", [(g, o) for g in GROUPS for o in _options(g)])
 def test_option_composes_and_instantiates(group: str, option: str, runtime):
-    from experiments.validate import target_callable, validate_config
+    from experiments.config.validate import target_callable, validate_config
 
     cfg = _compose([f"{group}={option}", "paths.cache_dir=/tmp/unused"])
     validate_config(cfg)  # every key of the option is a parameter of its target, of its type
@@ -71,7 +71,7 @@ def test_option_composes_and_instantiates(group: str, option: str, runtime):
         assert takes == (), f"only decomposers and labelers get runtime objects, {group}={option} asks {takes}"
     if group == "policy":
         # a training factory: the pipeline passes the episodes, labeller and folder at the call site
-        from experiments.instantiate import component_factory
+        from experiments.config.instantiate import component_factory
 
         factory = component_factory(node, group)
         assert {"episodes", "labeler", "out_dir"} <= set(inspect.signature(factory).parameters)
@@ -109,7 +109,7 @@ def test_experiment_composes(experiment: str):
     cfg = _compose([f"experiment={experiment}", "paths.cache_dir=/tmp/unused"], hydra=True)
     assert cfg.hydra.runtime.choices.experiment == experiment
     OmegaConf.to_container(cfg, resolve=False)  # every node is well formed
-    from experiments.validate import validate_config
+    from experiments.config.validate import validate_config
 
     validate_config(cfg)  # and every key is known and of its type
 
@@ -158,7 +158,7 @@ def test_typos_fail_at_compose_time(override: str):
     ("decomposer.views=[front,2]", "decomposer.views: expected"),
 ])
 def test_mistyped_or_unknown_keys_fail_before_any_stage(override: str, named: str):
-    from experiments.validate import ConfigError, validate_config
+    from experiments.config.validate import ConfigError, validate_config
 
     cfg = _compose([override, "paths.cache_dir=/tmp/unused"])
     with pytest.raises(ConfigError) as err:

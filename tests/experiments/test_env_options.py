@@ -15,7 +15,7 @@ def _env(**over):
 
 
 def test_demos_are_recorded_with_the_envs_physics(tmp_path: Path):
-    from experiments import components as comp
+    from experiments.run import components as comp
     from rdd.data.native import load_episode
 
     # 24 ticks of 240 Hz physics per frame: a 10 Hz recording, as the env steps in evaluation
@@ -29,7 +29,7 @@ def test_demos_are_recorded_with_the_envs_physics(tmp_path: Path):
 
 
 def test_demo_key_options_leave_out_only_the_loops_step_budget():
-    from experiments import components as comp
+    from experiments.run import components as comp
 
     opts = comp.demo_env_options(_env())
     assert set(opts) == {"image_size", "render_images", "ticks_per_frame", "motion_timeout"}

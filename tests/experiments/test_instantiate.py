@@ -9,9 +9,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf, open_dict
 
-import experiments.schemas  # noqa: F401  (registers base_config)
-from experiments.instantiate import instantiate_component, runtime_names
-from experiments.validate import ConfigError
+import experiments.config.schemas  # noqa: F401  (registers base_config)
+from experiments.config.instantiate import instantiate_component, runtime_names
+from experiments.config.validate import ConfigError
 from rdd.decomposers.base import Decomposer, Decomposition
 from rdd.decomposers.uniform import UniformDecomposer
 
@@ -98,7 +98,7 @@ def test_runtime_object_set_in_the_config_is_refused():
 def test_unknown_runtime_name_fails_before_any_stage(tmp_path: Path, group: str, cls: type, param: str):
     """A decomposer or labeler asking for an object under a name the run does not pass: one clear error."""
     pytest.importorskip("pybullet")
-    from experiments.pipeline import run
+    from experiments.run.pipeline import run
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="config", overrides=[

@@ -60,7 +60,7 @@ def test_ray_options_leave_nulls_to_ray():
 def test_threads_follow_the_launchers_allotment(monkeypatch, n_jobs, env, cpus, expected):
     import os
 
-    from experiments.job import default_threads
+    from experiments.run.job import default_threads
 
     for var in ("SLURM_CPUS_PER_TASK", "OMP_NUM_THREADS"):
         monkeypatch.delenv(var, raising=False)

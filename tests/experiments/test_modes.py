@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-import experiments.schemas  # noqa: F401  (registers base_config)
+import experiments.config.schemas  # noqa: F401  (registers base_config)
 
 pytest.importorskip("pybullet")
 pytest.importorskip("peft")
@@ -20,8 +20,8 @@ TINY_PLANNER = ["planner.pretrain.epochs=1", "planner.finetune.epochs=1",
 
 
 def _run(overrides: list[str], cache: Path, out: Path) -> dict:
-    from experiments.pipeline import run
-    from experiments.stages import read_json
+    from experiments.cache.store import read_json
+    from experiments.run.pipeline import run
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="config", overrides=[*FAST, *overrides, f"paths.cache_dir={cache}"])

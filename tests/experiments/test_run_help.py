@@ -19,7 +19,7 @@ def _help() -> str:
 
 def test_help_lists_groups_modes_and_tasks_that_compose():
     pytest.importorskip("pybullet")
-    import experiments.schemas  # noqa: F401  (registers the typed schema)
+    import experiments.config.schemas  # noqa: F401  (registers the typed schema)
 
     text = _help()
     groups = dict(line.strip().split(": ", 1) for line in text.splitlines()

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments.stages import SPEC_FILE, StageCache
+from experiments.cache.store import SPEC_FILE, StageCache
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN = ROOT / "run.py"
@@ -31,7 +31,7 @@ def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
 
 
 def test_unwritable_cache_builds_in_a_temporary_folder(unwritable, caplog):
-    with caplog.at_level(logging.WARNING, logger="experiments.stages"):
+    with caplog.at_level(logging.WARNING, logger="experiments.cache.store"):
         cache = StageCache.for_run(unwritable / "cache")
     assert cache.temporary and cache.root != unwritable / "cache"
     (line,) = [r.getMessage() for r in caplog.records]
@@ -64,8 +64,8 @@ def test_unwritable_run_dir_and_bad_values_are_one_line(unwritable, tmp_path):
 SCRIPT = textwrap.dedent("""
     import signal, sys, time
     from pathlib import Path
-    from experiments.interrupts import run_stoppable
-    from experiments.stages import StageCache
+    from experiments.run.interrupts import run_stoppable
+    from experiments.cache.store import StageCache
 
     signal.signal(signal.SIGINT, signal.default_int_handler)  # a background parent may ignore SIGINT
     cache = StageCache(Path(sys.argv[1]))

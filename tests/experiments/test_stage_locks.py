@@ -11,8 +11,8 @@ import threading
 import time
 from pathlib import Path
 
-from experiments.locks import FileLock
-from experiments.stages import StageCache, spec_key
+from experiments.cache.locks import FileLock
+from experiments.cache.store import StageCache, spec_key
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -27,7 +27,7 @@ def _lease_marker(host: str, pid: int, lease_s: float) -> str:
 WORKER = r"""
 import json, os, sys, time
 from pathlib import Path
-from experiments.stages import StageCache
+from experiments.cache.store import StageCache
 root, work, hold, beat, stale = sys.argv[1:6]
 work = Path(work)
 cache = StageCache(Path(root), heartbeat_s=float(beat), stale_after_s=float(stale))

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from experiments.stages import StageCache, spec_key
+from experiments.cache.store import StageCache, spec_key
 
 
 def test_stage_built_once_and_keyed_by_spec(tmp_path: Path):
@@ -51,7 +51,7 @@ def test_spec_key_rejects_objects():
 
 
 def test_one_line_per_stage_says_built_or_reused(tmp_path: Path):
-    from experiments.logs import stage_lines
+    from experiments.run.logs import stage_lines
 
     cache = StageCache(tmp_path)
     for task in ("a", "b"):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from experiments.stats import episode_outcomes, paired_difference, stratified_bootstrap_mean
+from experiments.report.stats import episode_outcomes, paired_difference, stratified_bootstrap_mean
 
 
 def test_two_values_interval_is_the_whole_range():

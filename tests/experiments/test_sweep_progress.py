@@ -8,7 +8,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from experiments.sweep_progress import SweepProgress, finished_runs, sweep_size
+from experiments.run.sweep_progress import SweepProgress, finished_runs, sweep_size
 
 
 def _hydra(task: list[str], params: dict | None = None, sweep_dir: str = "/tmp/x") -> OmegaConf:

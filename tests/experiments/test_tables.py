@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from experiments.results import RESULTS_FORMAT, per_task_success
-from experiments.table_builders import average_ranks
+from experiments.report.results import RESULTS_FORMAT, per_task_success
+from experiments.report.table_builders import average_ranks
 from experiments.tables import main, write_tables
 
 
@@ -122,7 +122,7 @@ def test_bad_inputs_name_the_file(tmp_path: Path):
 
 
 def test_labels_come_from_the_swept_overrides(tmp_path: Path):
-    from experiments.results import RunRecord, assign_labels
+    from experiments.report.results import RunRecord, assign_labels
 
     def rec(overrides: list[str]) -> RunRecord:
         return RunRecord(tmp_path, {"overrides": overrides, "choices": {"decomposer": "rdd"}})
@@ -179,7 +179,7 @@ def test_paired_table_in_written_tables(tmp_path: Path):
 
 
 def test_image_dependent_boundaries_and_their_planner_column(tmp_path: Path):
-    from experiments.result_blocks import image_dependent, planner_eval_block
+    from experiments.report.result_blocks import image_dependent, planner_eval_block
 
     def row(task, goal, prev, target, base, tuned):
         return {"task": task, "episode": "e", "frame": 0, "goal": goal, "previous": prev,
@@ -239,8 +239,8 @@ def test_alpha_table_pairs_against_the_papers_alpha_however_it_was_written(tmp_p
 def test_success_note_names_each_cpu_kind_its_runs_report(tmp_path: Path):
     """Trained stages round differently on another CPU: the note says which made the table, once per
     kind, and says nothing for results written before runs reported it."""
-    from experiments.results import RunRecord
-    from experiments.table_builders import machines_note
+    from experiments.report.results import RunRecord
+    from experiments.report.table_builders import machines_note
 
     def rec(model, capability):
         hw = {"cpu_count": 2} if model is None else {"cpu_model": model, "torch_cpu_capability": capability}

@@ -15,8 +15,8 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.logs import progress_enabled
-from experiments.stages import read_json, write_json_atomic
+from experiments.cache.store import read_json, write_json_atomic
+from experiments.run.logs import progress_enabled
 from rdd.segments import Segment
 
 PLANNER_FILE = "planner.json"
@@ -113,7 +113,7 @@ def test_seed(index: int) -> int:
 
 def make_env(env_cfg: DictConfig, task: str):
     """The gymnasium environment of ``task`` (options from the env config group)."""
-    from experiments.instantiate import instantiate_component
+    from experiments.config.instantiate import instantiate_component
 
     if env_cfg is not None and env_cfg.get("_target_"):
         return instantiate_component(env_cfg, "env", task=task)
@@ -257,7 +257,7 @@ def train_policy(policy_cfg: DictConfig, episodes, labeler, text_cache: Path, ou
     The episodes' instructions are the labels the pipeline recorded for these segments; the
     policy's dataset builder labels the same segments with the same labeler, which is checked here.
     """
-    from experiments.instantiate import component_factory
+    from experiments.config.instantiate import component_factory
     from policy.text import shared_embedder
 
     train = component_factory(policy_cfg, "policy")
@@ -285,7 +285,7 @@ def load_policy(policy_cfg: DictConfig, path: Path, text_cache: Path):
 # --- planner ---------------------------------------------------------------------------------------
 def learned_planner(planner_cfg: DictConfig):
     """The learned planner the config names (``planner.llava``: its settings and training steps)."""
-    from experiments.instantiate import instantiate_component
+    from experiments.config.instantiate import instantiate_component
 
     return instantiate_component(planner_cfg, "planner")
 

@@ -1,13 +1,13 @@
 """Check a composed config before any stage runs: every key known, every value of the expected type
 and within its range.
 
-Hydra's typed schema (``experiments.schemas.RunConfig``) covers the run's own keys but accepts keys
+Hydra's typed schema (``experiments.config.schemas.RunConfig``) covers the run's own keys but accepts keys
 added with ``+`` and cannot see inside the component groups, whose options are ``_target_`` nodes.
 Here each key is checked against what consumes it: the schema's fields for the run's keys, and the
 signature of the ``_target_`` (its parameters and type hints; a dataclass-typed parameter given as a
 mapping is checked field by field) for component nodes. The first problem is reported with its
 dotted key, the expected type and the value given (``decomposer.alpha: expected float, got 'abc'``).
-Numbers are checked against the ranges their dataclass fields declare (``experiments.schemas.ranged``:
+Numbers are checked against the ranges their dataclass fields declare (``experiments.config.schemas.ranged``:
 ``eval.episodes_per_task: expected >= 1 and <= 10000, got -1``), a run's seeds against the test
 split (:func:`check_relations`), a dataclass-typed value is built once here so its own checks
 (``__post_init__``) fail now, not when a stage builds it, and a component that declares its options'
@@ -147,7 +147,7 @@ def _check_value(path: str, value: Any, hint: Any) -> None:
 
 def check_range(path: str, value: Any, fld: dataclasses.Field) -> None:
     """``value`` (each item, for a list; null passes) within the range ``fld`` declares, if any."""
-    from experiments.schemas import RANGE
+    from experiments.config.schemas import RANGE
 
     bounds = fld.metadata.get(RANGE)
     if bounds is None or value is None:
@@ -275,7 +275,7 @@ def check_component_node(path: str, node: DictConfig) -> None:
 def validate_config(cfg: DictConfig, schema: type | None = None,
                     components: Sequence[str] | None = None) -> None:
     """Raise :class:`ConfigError` naming the first unknown or mistyped key of ``cfg``."""
-    from experiments.schemas import COMPONENT_GROUPS, RunConfig
+    from experiments.config.schemas import COMPONENT_GROUPS, RunConfig
 
     schema = schema or RunConfig
     components = COMPONENT_GROUPS if components is None else components
@@ -305,7 +305,7 @@ def validate_config(cfg: DictConfig, schema: type | None = None,
 def check_relations(cfg: DictConfig) -> None:
     """Ranges two keys make together: a closed-loop run's evaluation episodes (test-split indices
     ``seed * eval.seed_stride + i``) lie inside the test split and apart from other seeds' episodes."""
-    from experiments.schemas import SPLIT_SIZE
+    from experiments.config.schemas import SPLIT_SIZE
 
     if str(OmegaConf.select(cfg, "mode")).split(".")[-1] != "hierarchical":
         return

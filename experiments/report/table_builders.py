@@ -7,10 +7,10 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from experiments.job import machine_kind
-from experiments.results import RunRecord
-from experiments.stats import episode_outcomes, paired_difference
-from experiments.table_format import Table, mean_std, plus_minus
+from experiments.report.results import RunRecord
+from experiments.report.stats import episode_outcomes, paired_difference
+from experiments.report.table_format import Table, mean_std, plus_minus
+from experiments.run.job import machine_kind
 
 
 def average_ranks(scores: Sequence[float]) -> list[float]:

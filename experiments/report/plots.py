@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.results import RunRecord
-from experiments.table_builders import latest_per_method_seed, methods_in_order, speed_table
-from experiments.table_format import mean_std
+from experiments.report.results import RunRecord
+from experiments.report.table_builders import latest_per_method_seed, methods_in_order, speed_table
+from experiments.report.table_format import mean_std
 
 
 def plot_success(runs: Sequence[RunRecord], path: Path, title: str) -> bool:

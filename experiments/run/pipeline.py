@@ -14,15 +14,15 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from experiments import modes
-from experiments.graph import Run, Unavailable
-from experiments.instantiate import check_call, runtime_names
-from experiments.job import hardware, hydra_info, set_threads
-from experiments.logs import quiet_libraries, show_progress, stage_lines
-from experiments.result_blocks import main_metric, tracker_metrics
-from experiments.results import RESULTS_FILE, RESULTS_FORMAT, method_label
-from experiments.stages import StageCache, write_json_atomic
-from experiments.validate import validate_config
+from experiments.run import modes
+from experiments.cache.store import StageCache, write_json_atomic
+from experiments.config.instantiate import check_call, runtime_names
+from experiments.config.validate import validate_config
+from experiments.report.result_blocks import main_metric, tracker_metrics
+from experiments.report.results import RESULTS_FILE, RESULTS_FORMAT, method_label
+from experiments.run.graph import Run, Unavailable
+from experiments.run.job import hardware, hydra_info, set_threads
+from experiments.run.logs import quiet_libraries, show_progress, stage_lines
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +65,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         "hardware": {**hardware(), "torch_threads": threads, "parallel_jobs": n_jobs},
         "config": resolved,
     }
-    from experiments.tracking import Tracker
+    from experiments.run.tracking import Tracker
 
     tracker = Tracker(cfg.wandb, resolved, out_dir,
                       name=f"{choices.get('experiment', 'run')}-{results['label']}-s{cfg.seed}")
@@ -73,7 +73,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     cache = StageCache.for_run(cfg.paths.cache_dir)
     try:
         if mode == "speed":
-            from experiments.speed import measure_speed
+            from experiments.run.speed import measure_speed
 
             with cache.timed("speed"):
                 results["speed"] = measure_speed(cfg)

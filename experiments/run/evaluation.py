@@ -14,9 +14,9 @@ from typing import Any
 
 from omegaconf import DictConfig
 
-from experiments import components as comp
-from experiments.logs import progress
-from experiments.results import EpisodeResult
+from experiments.run import components as comp
+from experiments.report.results import EpisodeResult
+from experiments.run.logs import progress
 
 log = logging.getLogger(__name__)
 

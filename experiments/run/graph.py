@@ -15,11 +15,11 @@ from typing import Any, TypeVar
 
 from omegaconf import DictConfig, OmegaConf
 
-from experiments import components as comp
-from experiments.code_keys import code_key, stage_code_key, target_modules
-from experiments.instantiate import instantiate_component, runtime_names
-from experiments.stages import StageCache, read_json, spec_key, write_json_atomic
-from experiments.validate import target_callable
+from experiments.run import components as comp
+from experiments.cache.code_keys import code_key, stage_code_key, target_modules
+from experiments.cache.store import StageCache, read_json, spec_key, write_json_atomic
+from experiments.config.instantiate import instantiate_component, runtime_names
+from experiments.config.validate import target_callable
 from rdd.data.episode import Episode
 
 T = TypeVar("T")
@@ -300,7 +300,7 @@ class Run:
 
     def evaluation_seeds(self, n: int) -> list[int]:
         """Test-split seed indices of this run's evaluation episodes (kept inside the test split and
-        apart from other seeds' by experiments.validate.check_relations, before any stage)."""
+        apart from other seeds' by experiments.config.validate.check_relations, before any stage)."""
         base = int(self.cfg.seed) * int(self.cfg.eval.seed_stride)
         return [base + i for i in range(n)]
 

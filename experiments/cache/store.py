@@ -2,10 +2,10 @@
 
 A stage's key is the SHA-256 of a canonical JSON "spec": the config entries that affect the stage,
 the keys of the stages it consumes, and a fingerprint of the source that makes it, derived from its
-imports (``experiments.code_keys``), so changing anything upstream, config or code, changes every key below it.
+imports (``experiments.cache.code_keys``), so changing anything upstream, config or code, changes every key below it.
 Outputs are built in a temporary folder and renamed into place (:func:`rdd.atomic.atomic_dir`), so a
 job killed mid-stage leaves no entry a later job could take for a result. A per-key lock file
-(:class:`experiments.locks.FileLock`: owner host/pid, heartbeat, stale-lock takeover; no ``flock``, so
+(:class:`experiments.cache.locks.FileLock`: owner host/pid, heartbeat, stale-lock takeover; no ``flock``, so
 it holds on NFS-like shared filesystems too) makes concurrent jobs, local or on a cluster, that need
 the same stage build it once: the others wait and take the finished entry. A cache folder that
 cannot be written does not stop a run: :meth:`StageCache.for_run` then builds the run's stages in a
@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from experiments.code_keys import stage_code_key
-from experiments.locks import HEARTBEAT_S, STALE_AFTER_S, FileLock
+from experiments.cache.code_keys import stage_code_key
+from experiments.cache.locks import HEARTBEAT_S, STALE_AFTER_S, FileLock
 from rdd.atomic import TargetExistsError, atomic_dir, check_writable, write_json_atomic
 
 __all__ = ["StageCache", "StageTiming", "canonical", "read_json", "spec_key",

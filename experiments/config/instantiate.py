@@ -7,7 +7,7 @@ target at its call site, by keyword:
 * the run's *runtime objects*, one name each (:data:`rdd.registry.RUNTIME_OBJECTS`): ``database``
   (the sub-task database of the training episodes), ``encoder`` (the visual encoder) and ``cache``
   (the embedding cache). A component takes one by having a parameter of that name, which its config
-  leaves unset; the pipeline passes exactly those (``experiments.graph.Run.runtime``), and
+  leaves unset; the pipeline passes exactly those (``experiments.run.graph.Run.runtime``), and
   :func:`rdd.registry.construct` makes the call, as it does for ``python -m rdd``. Other components
   are composed in the config, not passed: ``index: ${index}`` hands RDD the ``index`` group's choice.
 * the call site's own arguments (``task=`` for the env, ``plans=`` for the oracle planner).
@@ -24,7 +24,7 @@ from typing import Any
 
 from omegaconf import DictConfig
 
-from experiments.validate import ConfigError, check_component_node, target_callable
+from experiments.config.validate import ConfigError, check_component_node, target_callable
 from rdd import registry
 from rdd.registry import RUNTIME_OBJECTS
 

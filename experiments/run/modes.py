@@ -7,15 +7,15 @@ from typing import Any
 
 import numpy as np
 
-from experiments import components as comp
-from experiments import planner_stages
-from experiments.code_keys import target_modules
-from experiments.graph import Run, finetunes
-from experiments.instantiate import instantiate_component
-from experiments.result_blocks import decomposition_block, planner_eval_block
-from experiments.results import average_success, per_task_success
-from experiments.stages import read_json, write_json_atomic
-from experiments.validate import target_callable
+from experiments.run import components as comp
+from experiments.run import planner_stages
+from experiments.cache.code_keys import target_modules
+from experiments.cache.store import read_json, write_json_atomic
+from experiments.config.instantiate import instantiate_component
+from experiments.config.validate import target_callable
+from experiments.report.result_blocks import decomposition_block, planner_eval_block
+from experiments.report.results import average_success, per_task_success
+from experiments.run.graph import Run, finetunes
 
 
 def decompose_only(run: Run, results: dict[str, Any]) -> None:
@@ -29,7 +29,7 @@ def decompose_only(run: Run, results: dict[str, Any]) -> None:
 
 def hierarchical(run: Run, results: dict[str, Any]) -> None:
     """The closed loop: planner -> instruction -> policy -> keyframe, per task and env seed."""
-    from experiments.evaluation import evaluate
+    from experiments.run.evaluation import evaluate
 
     # While another job of the sweep trains the policy, this one builds its planner meanwhile.
     policy = run.policy_stage(wait=False)

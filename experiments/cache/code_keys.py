@@ -1,12 +1,12 @@
 """Stage code keys derived from the imports of the code that builds each stage.
 
 A stage's key holds a fingerprint of the source that makes it: the functions of
-``experiments.components`` its build calls (``STAGE_BUILDERS``), the modules of the components its
+``experiments.run.components`` its build calls (``STAGE_BUILDERS``), the modules of the components its
 spec names by ``_target_``, and everything of this repository those import, followed through
 ``import`` statements (lazy ones inside functions too). A module that only reaches a stage through
 an upstream stage is covered by that stage's key, which the downstream spec contains.
 
-Two boundaries keep keys as narrow as the code: ``experiments.components`` is followed per function
+Two boundaries keep keys as narrow as the code: ``experiments.run.components`` is followed per function
 (a stage depends on the calls it makes, not on the whole facade), and the task modules of
 ``envs.tasks`` join only the keys of the stages made per task (``envs.tasks.task_sources``), so
 editing one task keeps the other tasks' demos, policy and evaluations.
@@ -21,9 +21,9 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("rdd", "envs", "policy", "planner", "experiments")
-FACADE = "experiments.components"
+FACADE = "experiments.run.components"
 TASK_PREFIX = "envs.tasks."
 SHARED_TASK_MODULES = frozenset({"envs.tasks.base"})
 
@@ -40,7 +40,7 @@ STAGE_BUILDERS: dict[str, tuple[str, ...]] = {
     "decompositions": ("miou",),
     "planner_base": ("pretrain_planner",),
     "planner_finetune": ("finetune_planner",),
-    "evaluation": ("experiments.evaluation", "make_env", "load_policy", "load_planner"),
+    "evaluation": ("experiments.run.evaluation", "make_env", "load_policy", "load_planner"),
     "planner_eval": ("planner_test_examples", "load_planner"),
 }
 
@@ -138,7 +138,7 @@ def closure(entries: tuple[str, ...], root: Path = REPO_ROOT) -> tuple[tuple[str
             tree = _tree(path)
             node = _definition(tree, func)
             if node is None:
-                raise ValueError(f"stage code: {module} defines no {func!r} (experiments.code_keys)")
+                raise ValueError(f"stage code: {module} defines no {func!r} (experiments.cache.code_keys)")
             out[f"{rel}:{func}"] = (ast.get_source_segment(path.read_text(), node) or "").encode()
             # the facade's own helpers and constants that this definition uses
             todo.extend(f"{module}:{n.id}" for n in ast.walk(node)

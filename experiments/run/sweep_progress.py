@@ -18,7 +18,7 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.results import RESULTS_FILE
+from experiments.report.results import RESULTS_FILE
 
 
 def sweep_size(config: DictConfig) -> int:

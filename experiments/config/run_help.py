@@ -11,7 +11,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-CONF = Path(__file__).resolve().parents[1] / "conf"
+CONF = Path(__file__).resolve().parents[2] / "conf"
 
 
 def choosable_groups(conf: Path = CONF) -> dict[str, list[str]]:
@@ -25,7 +25,7 @@ def choosable_groups(conf: Path = CONF) -> dict[str, list[str]]:
 def help_text() -> str:
     """The help page of ``run.py``."""
     from envs.tasks import task_names
-    from experiments.schemas import Mode
+    from experiments.config.schemas import Mode
 
     lines = ["python run.py [group=option ...] [key=value ...]     one run",
              "python run.py -m group=a,b key=1,2 ...               a sweep (one job per combination)",

@@ -4,7 +4,7 @@ The primary config (``conf/config.yaml``) starts its defaults list with ``base_c
 ``RunConfig`` dataclass below), so a misspelt or mistyped top-level key
 (``sed=1``, ``eval.episodes_per_task=many``, ``mode=trian``) fails when Hydra composes the config,
 before any work starts. Keys added with ``+`` and the component groups (decomposer, encoder, ...),
-which are ``_target_`` nodes, are checked by ``experiments.validate.validate_config`` (keys against
+which are ``_target_`` nodes, are checked by ``experiments.config.validate.validate_config`` (keys against
 the target's signature, values against its type hints) before any stage runs. Every numeric field
 declares its accepted range here, beside its default (:func:`ranged`); the validator checks them all.
 """
@@ -114,7 +114,7 @@ class PathsConfig:
 class RunConfig:
     """Top-level schema of ``conf/config.yaml``."""
 
-    # Evaluation seeds must stay in the test split too: experiments.validate.check_relations.
+    # Evaluation seeds must stay in the test split too: experiments.config.validate.check_relations.
     seed: int = ranged(0, low=0)
     mode: Mode = Mode.hierarchical
     # Evaluation tasks; null = every evaluation task of the env (pretraining tasks excluded).
@@ -147,7 +147,7 @@ class RunConfig:
     planner: Any = None
 
 
-# The groups whose options are `_target_` nodes (experiments.validate checks them against their target).
+# The groups whose options are `_target_` nodes (experiments.config.validate checks them against their target).
 COMPONENT_GROUPS = ("env", "encoder", "index", "decomposer", "labeler", "train_labeler", "policy",
                     "planner")
 
