@@ -14,8 +14,8 @@ from typing import Any
 
 from omegaconf import DictConfig
 
-from experiments.run import components as comp
 from experiments.report.results import EpisodeResult
+from experiments.run import components as comp
 from experiments.run.logs import progress
 
 log = logging.getLogger(__name__)

@@ -15,11 +15,11 @@ from typing import Any, TypeVar
 
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.run import components as comp
 from experiments.cache.code_keys import code_key, stage_code_key, target_modules
 from experiments.cache.store import StageCache, read_json, spec_key, write_json_atomic
 from experiments.config.instantiate import instantiate_component, runtime_names
 from experiments.config.validate import target_callable
+from experiments.run import components as comp
 from rdd.data.episode import Episode
 
 T = TypeVar("T")

@@ -7,14 +7,14 @@ from typing import Any
 
 import numpy as np
 
-from experiments.run import components as comp
-from experiments.run import planner_stages
 from experiments.cache.code_keys import target_modules
 from experiments.cache.store import read_json, write_json_atomic
 from experiments.config.instantiate import instantiate_component
 from experiments.config.validate import target_callable
 from experiments.report.result_blocks import decomposition_block, planner_eval_block
 from experiments.report.results import average_success, per_task_success
+from experiments.run import components as comp
+from experiments.run import planner_stages
 from experiments.run.graph import Run, finetunes
 
 

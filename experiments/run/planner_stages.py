@@ -11,10 +11,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from experiments.run import components as comp
 from experiments.cache.code_keys import target_modules
 from experiments.cache.store import read_json, spec_key, write_json_atomic
 from experiments.config.instantiate import instantiate_component
+from experiments.run import components as comp
 from experiments.run.graph import Run, each_free_first, finetunes, with_segments
 from experiments.run.logs import progress
 
