@@ -84,22 +84,22 @@ class LlavaPlanner:
 
         examples = self.examples(episodes, self.config.finetune)
         if self.config.describe_scene:
-            from planner.planner import Planner
+            from planner.planner import VLMPlanner
 
             # the base describes the demos' frames as it will describe the robot's at run time
             # (no simulator record needed: real demonstrations work the same way)
-            examples = Planner(self.config, base_dir).with_scenes(examples)
+            examples = VLMPlanner(self.config, base_dir).with_scenes(examples)
         return finetune_lora(self.config, base_dir, examples, out_dir, seed=seed, progress=progress)
 
     def load(self, base_dir: Path, adapter_dir: Path | None = None, describer=None):
-        """The trained planner (:class:`planner.planner.Planner`): the base, plus the adapter if given.
+        """The trained planner (:class:`planner.planner.VLMPlanner`): the base, plus the adapter if given.
 
         ``describer``: the already loaded base of ``base_dir`` to describe scenes (``describe_scene``),
         instead of loading a second copy.
         """
-        from planner.planner import Planner
+        from planner.planner import VLMPlanner
 
-        return Planner(self.config, base_dir, adapter_dir, describer=describer)
+        return VLMPlanner(self.config, base_dir, adapter_dir, describer=describer)
 
 
 class TinyLlava(LlavaPlanner):

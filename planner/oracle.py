@@ -12,8 +12,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from planner.interface import Planner
 
-class OraclePlanner:
+
+class OraclePlanner(Planner):
     """Plays back the expert's labelled sub-task instructions of the episode being evaluated."""
 
     # No base model and no finetuning: the pipeline skips the planner stages for it.

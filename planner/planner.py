@@ -13,17 +13,18 @@ import torch
 from planner.captions import CAPTION_MAX_TOKENS, CAPTION_QUESTION
 from planner.config import PlannerConfig
 from planner.dataset import PlannerCollator, PlannerExample, encode_prompt
+from planner.interface import Planner
 from planner.models import load_model
 from planner.prompts import clean_output
 
 CAPTION_MEMORY = 100_000  # captions a describer keeps (about 10 MB); past it, it starts afresh
 
 
-class Planner:
+class VLMPlanner(Planner):
     """A base LLaVA planner, optionally with a LoRA adapter, queried greedily with bounded length."""
 
     def __init__(self, cfg: PlannerConfig, base_dir: str | Path, adapter_dir: str | Path | None = None,
-                 device: str | None = None, describer: Planner | None = None):
+                 device: str | None = None, describer: VLMPlanner | None = None):
         self.cfg = cfg
         self.device = device or ("cuda" if torch.cuda.is_available() else "cpu")
         # describe_scene: the base (not the adapter, which never trained on captions) describes;
@@ -31,7 +32,7 @@ class Planner:
         if cfg.describe_scene and describer is not None and describer._describer is not describer:
             raise ValueError("planner describer must be a base planner (no adapter) with describe_scene")
         self._describer = (None if not cfg.describe_scene else self if adapter_dir is None
-                           else describer or Planner(cfg, base_dir, None, self.device))
+                           else describer or VLMPlanner(cfg, base_dir, None, self.device))
         model, self.processor = load_model(base_dir, cfg, device=self.device)
         if adapter_dir is not None:
             from peft import PeftModel

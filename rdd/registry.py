@@ -1,12 +1,18 @@
-"""The one registry of swappable rdd components and the one way to build them, for the CLI and the harness.
+"""The one registry of everything chosen by name, and the one way to build it, for the CLI, the server
+and the harness.
 
-A component is found by convention, with no central table: the decomposer ``NAME`` is the
-:class:`~rdd.decomposers.base.Decomposer` subclass defined in module ``rdd.decomposers.NAME``, the
-encoder ``NAME`` is the ``build(**options)`` factory of module ``rdd.encoders.NAME``, the index
-``NAME`` is the :class:`~rdd.index.base.NearestIndex` subclass of ``rdd.index.NAME``. Adding one is
-one module (plus, for the harness, one ``conf/<group>/<option>.yaml`` whose ``_target_`` is
-:func:`target` of it). ``python -m rdd`` builds ``--decomposer NAME`` / ``--encoder NAME`` through
-:func:`component`, and a Hydra option's ``_target_`` names the same object, so the two cannot drift.
+Every *kind* of component (decomposer, encoder, index, labeler, reader, VLM backend; the harness adds
+task) is one table, filled by one mechanism: the component says its name where it is defined::
+
+    @register("decomposer", "uvd")
+    class UVDDecomposer(Decomposer): ...
+
+A kind's table is filled by importing every public module of its packages (:data:`KINDS`), so adding a
+component is one module in that package (plus, for the harness, one ``conf/<group>/<name>.yaml`` whose
+``_target_`` is :func:`target` of it); a module outside the package joins through the environment
+variable ``RDD_PLUGINS`` (comma-separated module names, imported with the kinds). ``python -m rdd``
+builds ``--decomposer NAME`` / ``--encoder NAME`` through :func:`component`, and a Hydra option's
+``_target_`` names the same object, so the two cannot drift. An unknown name lists the known ones.
 
 A component is called with its options (keyword arguments: the CLI's ``--option``, a config's keys)
 and the *runtime objects* it takes (:data:`RUNTIME_OBJECTS`): what exists only once a run has made
@@ -18,20 +24,36 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import os
 import pkgutil
 import re
-from collections.abc import Iterable, Mapping, Sequence
-from typing import Any
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, TypeVar
 
-# group -> (package, what the module contributes: "class" = the subclass of ``base`` it defines,
-# "build" = its build() factory)
-GROUPS: dict[str, tuple[str, str, str]] = {
-    "decomposer": ("rdd.decomposers", "class", "rdd.decomposers.base:Decomposer"),
-    "encoder": ("rdd.encoders", "build", "rdd.encoders.base:Encoder"),
-    "index": ("rdd.index", "class", "rdd.index.base:NearestIndex"),
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class Kind:
+    """Where a kind's components are defined and what each must be."""
+
+    packages: tuple[str, ...]  # every public module of these is imported to find the components
+    base: str | None = None  # "module:Class" each component subclasses (None: any callable or object)
+    factory: bool = False  # components are ``build(**options)`` factories, not classes
+
+
+KINDS: dict[str, Kind] = {
+    "decomposer": Kind(("rdd.decomposers",), "rdd.decomposers.base:Decomposer"),
+    "encoder": Kind(("rdd.encoders",), "rdd.encoders.base:Encoder", factory=True),
+    "index": Kind(("rdd.index",), "rdd.index.base:NearestIndex"),
+    "labeler": Kind(("rdd.labelers",)),
+    "reader": Kind(("rdd.data",)),
+    "vlm_backend": Kind(("rdd.labelers.vlm_backends",)),
 }
-# Modules of those packages that hold shared code, not a component.
-_NOT_COMPONENTS = {"base", "embed", "cache"}
+PLUGINS_ENV = "RDD_PLUGINS"
+_TABLES: dict[str, dict[str, Any]] = {}
+_SEARCHED: set[str] = set()
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 # What a run makes at run time and hands to the components that take it, one name each.
 RUNTIME_OBJECTS: dict[str, str] = {
@@ -41,70 +63,94 @@ RUNTIME_OBJECTS: dict[str, str] = {
 }
 
 
-def _group(group: str) -> tuple[str, str, type]:
-    if group not in GROUPS:
-        raise ValueError(f"unknown component group {group!r}; the registry has {sorted(GROUPS)}")
-    package, kind, base = GROUPS[group]
-    module, _, cls = base.partition(":")
-    return package, kind, getattr(importlib.import_module(module), cls)
+def define_kind(kind: str, packages: Sequence[str], base: str | None = None, factory: bool = False) -> None:
+    """Add a kind whose components live above the library (the harness's tasks)."""
+    KINDS[kind] = Kind(tuple(packages), base, factory)
+    _SEARCHED.discard(kind)
 
 
-def available(group: str) -> list[str]:
-    """Names of the components of ``group`` (modules of its package, helpers excluded)."""
-    package, _, _ = _group(group)
-    pkg = importlib.import_module(package)
-    return sorted(info.name for info in pkgutil.iter_modules(pkg.__path__)
-                  if not info.name.startswith("_") and not info.ispkg and info.name not in _NOT_COMPONENTS)
+def register(kind: str, name: str) -> Callable[[T], T]:
+    """Decorator: the class or factory it decorates is the component ``name`` of ``kind``."""
+    if not _NAME_RE.match(name):
+        raise ValueError(f"{kind} {name!r} is not a component name (lower case, digits, underscores)")
+
+    def add(obj: T) -> T:
+        table = _TABLES.setdefault(kind, {})
+        old = table.get(name)
+        if old is not None and _dotted(old) != _dotted(obj):
+            raise ValueError(f"{kind} {name!r} is registered twice: {_dotted(old)} and {_dotted(obj)}")
+        table[name] = obj
+        return obj
+
+    return add
 
 
-def component(group: str, name: str) -> Any:
-    """The class (decomposer, index) or factory (encoder) registered as ``name`` in ``group``."""
-    package, kind, base = _group(group)
-    if not isinstance(name, str) or not _NAME_RE.match(name) or name in _NOT_COMPONENTS:
-        raise ValueError(f"{group} {name!r} is not a component name; available: {available(group)}")
-    if name not in available(group):
-        raise ValueError(f"unknown {group} {name!r}; available: {available(group)}")
-    module = importlib.import_module(f"{package}.{name}")
-    if kind == "build":
-        build = getattr(module, "build", None)
-        if not callable(build):
-            raise ValueError(f"module {package}.{name} has no build(); available: {available(group)}")
-        return build
-    found = [obj for obj in vars(module).values()
-             if inspect.isclass(obj) and issubclass(obj, base) and obj is not base
-             and obj.__module__ == module.__name__ and not inspect.isabstract(obj)]
-    if len(found) != 1:
-        raise ValueError(f"module {package}.{name} must define exactly one {base.__name__} subclass, "
-                         f"found {[c.__name__ for c in found]}")
-    return found[0]
-
-
-def target(group: str, name: str) -> str:
-    """The dotted path of :func:`component` (what a Hydra config's ``_target_`` names)."""
-    obj = component(group, name)
-    if GROUPS[group][1] == "build":
-        return f"{GROUPS[group][0]}.{name}.build"  # the module's factory (it may be a partial)
+def _dotted(obj: Any) -> str:
     return f"{obj.__module__}.{obj.__qualname__}"
 
 
-def name_of(group: str, dotted: str) -> str | None:
+def _kind(kind: str) -> Kind:
+    if kind not in KINDS:
+        raise ValueError(f"unknown component kind {kind!r}; the registry has {sorted(KINDS)}")
+    return KINDS[kind]
+
+
+def _search(kind: str) -> dict[str, Any]:
+    """The table of ``kind``, after importing every public module of its packages and the plugins."""
+    if kind not in _SEARCHED:
+        for package in _kind(kind).packages:
+            module = importlib.import_module(package)
+            for info in pkgutil.walk_packages(getattr(module, "__path__", []), package + "."):
+                if not any(part.startswith("_") for part in info.name.split(".")):
+                    importlib.import_module(info.name)
+        for plugin in filter(None, (p.strip() for p in os.environ.get(PLUGINS_ENV, "").split(","))):
+            try:
+                importlib.import_module(plugin)
+            except ImportError as exc:
+                raise ImportError(f"{PLUGINS_ENV}: cannot import plugin module {plugin!r}: {exc}") from exc
+        _SEARCHED.add(kind)
+    return _TABLES.setdefault(kind, {})
+
+
+def entries(kind: str) -> dict[str, Any]:
+    """The components of ``kind``, name -> class or factory, in the order they were registered."""
+    return dict(_search(kind))
+
+
+def available(kind: str) -> list[str]:
+    """Names of the components of ``kind``, sorted."""
+    return sorted(_search(kind))
+
+
+def component(kind: str, name: str) -> Any:
+    """The class or factory registered as ``name`` of ``kind``; an unknown name lists the known ones."""
+    table = _search(kind)
+    if not isinstance(name, str) or name not in table:
+        raise ValueError(f"unknown {kind} {name!r}; available: {sorted(table)}")
+    return table[name]
+
+
+def target(kind: str, name: str) -> str:
+    """The dotted path of :func:`component` (what a Hydra config's ``_target_`` names)."""
+    return _dotted(component(kind, name))
+
+
+def name_of(kind: str, dotted: str) -> str | None:
     """The registry name whose :func:`target` is ``dotted`` (None when it is not a registered one)."""
-    package = GROUPS[group][0] if group in GROUPS else None
-    if package is None or not dotted.startswith(package + "."):
+    if kind not in KINDS:
         return None
-    name = dotted[len(package) + 1:].split(".", 1)[0]
-    try:
-        return name if target(group, name) == dotted else None
-    except (ValueError, ImportError):
-        return None
+    return next((n for n, obj in _search(kind).items() if _dotted(obj) == dotted), None)
 
 
-def build(group: str, name: str, **options: Any) -> Any:
-    """The component ``name`` of ``group`` built with ``options`` (it takes no runtime object)."""
-    built = construct(component(group, name), {}, target(group, name), **options)
-    base = _group(group)[2]
-    if not isinstance(built, base):
-        raise TypeError(f"{target(group, name)} returned {type(built).__name__}, not {base.__name__}")
+def build(kind: str, name: str, **options: Any) -> Any:
+    """The component ``name`` of ``kind`` built with ``options`` (it takes no runtime object)."""
+    built = construct(component(kind, name), {}, target(kind, name), **options)
+    base = _kind(kind).base
+    if base is not None:
+        module, _, cls = base.partition(":")
+        expected = getattr(importlib.import_module(module), cls)
+        if not isinstance(built, expected):
+            raise TypeError(f"{target(kind, name)} returned {type(built).__name__}, not {expected.__name__}")
     return built
 
 

@@ -30,18 +30,18 @@ SHARED_TASK_MODULES = frozenset({"envs.tasks.base"})
 # The functions of the facade each stage's build calls (``module:function`` entries) and any module
 # it calls directly. Components named by ``_target_`` in a stage's spec join it on their own.
 STAGE_BUILDERS: dict[str, tuple[str, ...]] = {
-    "demos": ("episodes_for", "load_episode"),
+    "demos": ("episodes_for", "rdd.data.native"),
     "expert_labels": ("expert_segments",),
     "oracle_plans": ("expert_plan", "expert_segments"),
     "policy": ("train_policy",),
     "database_part": ("build_database",),
     "database": ("merge_databases",),
     "calibration": ("calibrate_database",),
-    "decompositions": ("miou",),
+    "decompositions": ("rdd.metrics",),
     "planner_base": ("pretrain_planner",),
     "planner_finetune": ("finetune_planner",),
     "evaluation": ("experiments.run.evaluation", "make_env", "load_policy", "load_planner"),
-    "planner_eval": ("planner_test_examples", "load_planner"),
+    "planner_eval": ("load_planner",),
 }
 
 

@@ -30,8 +30,7 @@ from experiments.cache.code_keys import stage_code_key
 from experiments.cache.locks import HEARTBEAT_S, STALE_AFTER_S, FileLock
 from rdd.atomic import TargetExistsError, atomic_dir, check_writable, write_json_atomic
 
-__all__ = ["StageCache", "StageTiming", "canonical", "read_json", "spec_key",
-           "stage_code_key", "write_json_atomic"]
+__all__ = ["StageCache", "StageTiming", "canonical", "read_json", "spec_key"]
 
 log = logging.getLogger(__name__)
 

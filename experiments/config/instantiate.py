@@ -29,9 +29,10 @@ from rdd import registry
 from rdd.registry import RUNTIME_OBJECTS
 
 
-def runtime_names(node: DictConfig, group: str) -> tuple[str, ...]:
-    """The runtime objects the component of ``node`` takes (its parameters named in RUNTIME_OBJECTS)."""
-    names = registry.runtime_names(target_callable(node, group))
+def runtime_names(node: DictConfig, group: str, fn: Any = None) -> tuple[str, ...]:
+    """The runtime objects the component of ``node`` takes (its parameters named in RUNTIME_OBJECTS);
+    ``fn``: the node's target when the caller has resolved it already."""
+    names = registry.runtime_names(fn if fn is not None else target_callable(node, group))
     for name in names:
         if node.get(name) is not None:
             raise ConfigError(f"{group}.{name}: `{name}` is a runtime object ({RUNTIME_OBJECTS[name]}) "
@@ -39,13 +40,13 @@ def runtime_names(node: DictConfig, group: str) -> tuple[str, ...]:
     return names
 
 
-def check_call(node: DictConfig, group: str, given: Iterable[str] = ()) -> None:
+def check_call(node: DictConfig, group: str, given: Iterable[str] = (), fn: Any = None) -> None:
     """Fail naming the component and parameter when a required parameter would be left unfilled.
 
     ``given`` are the names the call site passes (runtime objects and its own arguments).
     """
     given = set(given) | {key for key in node if node.get(key) is not None}
-    unset = registry.unset_parameters(target_callable(node, group), given)
+    unset = registry.unset_parameters(fn if fn is not None else target_callable(node, group), given)
     if unset:
         raise ConfigError(
             f"{group} ({node._target_}): parameter {unset[0]!r} is not set by the config and is not a "
@@ -53,11 +54,11 @@ def check_call(node: DictConfig, group: str, given: Iterable[str] = ()) -> None:
             "parameter after one of them, or give it a default)")
 
 
-def component_factory(node: DictConfig, group: str) -> functools.partial:
+def component_factory(node: DictConfig, group: str, fn: Any = None) -> functools.partial:
     """The ``_target_`` with the config's options bound; the caller passes the rest."""
     from hydra.utils import instantiate
 
-    check_component_node(group, node)
+    check_component_node(group, node, fn)
     partial = instantiate(node, _partial_=True)
     if not isinstance(partial, functools.partial):
         raise TypeError(f"config group {group!r}: {node._target_} did not give a partial")
@@ -72,8 +73,9 @@ def instantiate_component(node: DictConfig, group: str, runtime: Mapping[str, An
     other; ``kwargs`` are the call site's own arguments (they override config values).
     """
     runtime = dict(runtime or {})
-    runtime_names(node, group)  # a runtime object set in the config fails here, naming the key
-    check_call(node, group, [*runtime, *kwargs])
+    fn = target_callable(node, group)  # resolved once; every check below reads it
+    runtime_names(node, group, fn)  # a runtime object set in the config fails here, naming the key
+    check_call(node, group, [*runtime, *kwargs], fn)
     # A partial from the config, called with the runtime objects: they never pass through
     # OmegaConf (which would copy or reject them).
-    return registry.construct(component_factory(node, group), runtime, f"{group} ({node._target_})", **kwargs)
+    return registry.construct(component_factory(node, group, fn), runtime, f"{group} ({node._target_})", **kwargs)

@@ -240,12 +240,14 @@ def _raw(node: DictConfig, key: Any) -> Any:
         return None
 
 
-def check_component_node(path: str, node: DictConfig) -> None:
-    """A ``_target_`` node: its target imports, every key is a parameter of it, of the hinted type."""
-    try:
-        fn = target_callable(node, path)
-    except (ImportError, ValueError) as exc:
-        raise ConfigError(f"{path}._target_: {exc}") from None
+def check_component_node(path: str, node: DictConfig, fn: Any = None) -> None:
+    """A ``_target_`` node: its target imports, every key is a parameter of it, of the hinted type
+    (``fn``: the target, when the caller has resolved it already)."""
+    if fn is None:
+        try:
+            fn = target_callable(node, path)
+        except (ImportError, ValueError) as exc:
+            raise ConfigError(f"{path}._target_: {exc}") from None
     try:
         params = inspect.signature(fn).parameters
     except (TypeError, ValueError):

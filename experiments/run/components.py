@@ -15,8 +15,9 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.cache.store import read_json, write_json_atomic
+from experiments.cache.store import read_json
 from experiments.run.logs import progress_enabled
+from rdd.atomic import write_json_atomic
 from rdd.segments import Segment
 
 PLANNER_FILE = "planner.json"
@@ -94,13 +95,6 @@ def episodes_for(env_cfg: DictConfig, task: str, split: str, count: int, root: P
     return [episode_dir(root, split, task, seed) for seed in used[task]]
 
 
-def load_episode(path: Path):
-    """A native episode directory."""
-    from rdd.data.native import load_episode as _load
-
-    return _load(path)
-
-
 def test_seed(index: int) -> int:
     """The environment seed of evaluation episode ``index`` (the test split's range)."""
     from envs.generate import SPLIT_SEEDS
@@ -125,11 +119,6 @@ def make_env(env_cfg: DictConfig, task: str):
 def episode_goal(env, info: dict[str, Any]) -> str:
     """The language goal of the episode just reset."""
     return str(info.get("goal") or env.scene_description()["goal"])
-
-
-def env_task(env) -> str:
-    """Name of the env's task."""
-    return str(env.task_name)
 
 
 def observation_image(obs: dict[str, Any], view: str):
@@ -185,20 +174,6 @@ def expert_plan(env_cfg: DictConfig, task: str, seed: int, labeler) -> dict[str,
     segs = expert_segments(ep)
     return {"seed": int(seed), "expert_success": bool(res.success),
             "instructions": [labeler.label(ep, s) for s in segs]}
-
-
-def miou(pred: Sequence[Segment], gt: Sequence[Segment]) -> float:
-    """The RDD paper's mIoU of a predicted segmentation against the expert's."""
-    from rdd.metrics import miou as _miou
-
-    return _miou(list(pred), list(gt))
-
-
-def embedding_cache(root: Path):
-    """The on-disk embedding cache shared by every run."""
-    from rdd.encoders.cache import EmbeddingCache
-
-    return EmbeddingCache(root)
 
 
 def build_database(episodes, encoder, views, cache, out: Path) -> None:
@@ -283,43 +258,20 @@ def load_policy(policy_cfg: DictConfig, path: Path, text_cache: Path):
 
 
 # --- planner ---------------------------------------------------------------------------------------
-def learned_planner(planner_cfg: DictConfig):
-    """The learned planner the config names (``planner.llava``: its settings and training steps)."""
-    from experiments.config.instantiate import instantiate_component
-
-    return instantiate_component(planner_cfg, "planner")
-
-
-def planner_view(planner_cfg: DictConfig) -> str:
-    """The camera view the planner sees (as in its training examples)."""
-    return learned_planner(planner_cfg).view
-
-
-def planner_base_spec(planner_cfg: DictConfig) -> dict[str, Any]:
-    """The part of the planner config that makes the base (finetuning settings excluded)."""
-    return learned_planner(planner_cfg).base_spec()
-
-
-def pretrain_planner(planner_cfg: DictConfig, episodes, corpus: Sequence[str], out: Path,
-                     vocabulary_episodes=()) -> None:
+# ``planner`` below is the run's learned planner (``planner.llava``: its settings and training steps),
+# built once from the config by ``Run.learned_planner``.
+def pretrain_planner(planner, episodes, corpus: Sequence[str], out: Path, vocabulary_episodes=()) -> None:
     """Pretrain the base planner on the pretraining tasks' demos (its tokenizer also sees ``corpus``;
     the slot words of ``vocabulary_episodes`` are saved with it for the finetune's slot swapping)."""
-    path = learned_planner(planner_cfg).pretrain(episodes, out, extra_corpus=list(corpus),
-                                                 vocabulary_episodes=list(vocabulary_episodes),
-                                                 progress=progress_enabled())
+    path = planner.pretrain(episodes, out, extra_corpus=list(corpus), vocabulary_episodes=list(vocabulary_episodes),
+                            progress=progress_enabled())
     write_json_atomic(out / PLANNER_FILE, {"base": _relative(path, out)})
 
 
-def finetune_planner(planner_cfg: DictConfig, base_dir: Path, episodes, seed: int, out: Path) -> None:
+def finetune_planner(planner, base_dir: Path, episodes, seed: int, out: Path) -> None:
     """LoRA-finetune the base planner on demonstrations carrying their decomposition and labels."""
-    path = learned_planner(planner_cfg).finetune(_resolve(base_dir), episodes, out, seed=seed,
-                                                 progress=progress_enabled())
+    path = planner.finetune(_resolve(base_dir), episodes, out, seed=seed, progress=progress_enabled())
     write_json_atomic(out / PLANNER_FILE, {"adapter": _relative(path, out)})
-
-
-def planner_test_examples(planner_cfg: DictConfig, episodes) -> list:
-    """Scoring examples: every segment start of labelled episodes, queried as in the closed loop."""
-    return learned_planner(planner_cfg).examples(episodes)
 
 
 def _relative(path: Path, root: Path) -> str:
@@ -336,8 +288,8 @@ def _resolve(stage_dir: Path) -> Path:
     return p if p.is_absolute() else stage_dir / p
 
 
-def load_planner(planner_cfg: DictConfig, base_stage: Path, finetune_stage: Path | None, describer=None):
+def load_planner(planner, base_stage: Path, finetune_stage: Path | None, describer=None):
     """The planner: the base, plus the LoRA adapter when finetuned (``describer``: the loaded base,
     which describes its scenes under ``describe_scene``)."""
     adapter = None if finetune_stage is None else _resolve(finetune_stage)
-    return learned_planner(planner_cfg).load(_resolve(base_stage), adapter, describer=describer)
+    return planner.load(_resolve(base_stage), adapter, describer=describer)

@@ -17,18 +17,18 @@ from omegaconf import DictConfig
 from experiments.report.results import EpisodeResult
 from experiments.run import components as comp
 from experiments.run.logs import progress
+from planner.interface import Planner
+from policy.interface import Policy
 
 log = logging.getLogger(__name__)
 
 
-def run_episode(env: Any, seed: int, planner: Any, policy: Any, max_steps: int, view: str) -> EpisodeResult:
+def run_episode(env: Any, seed: int, planner: Planner, policy: Policy, max_steps: int, view: str) -> EpisodeResult:
     """One closed-loop episode; never raises for a failed motion (the episode just fails)."""
     obs, info = env.reset(seed=int(seed))
     goal = comp.episode_goal(env, info)
     policy.reset(goal)
-    start = getattr(planner, "reset", None)  # planners that follow one episode (the oracle)
-    if start is not None:
-        start(task=comp.env_task(env), seed=int(seed), goal=goal)
+    planner.reset(task=str(env.task_name), seed=int(seed), goal=goal)
     previous: str | None = None
     instructions: list[str] = []
     failure: str | None = "step limit"
@@ -50,7 +50,7 @@ def run_episode(env: Any, seed: int, planner: Any, policy: Any, max_steps: int, 
             break
         if info.get("motion_failed"):
             failure = f"last motion failed: {info.get('failure')}"  # the loop goes on: replan
-    return EpisodeResult(task=comp.env_task(env), seed=int(seed), success=success, steps=steps,
+    return EpisodeResult(task=str(env.task_name), seed=int(seed), success=success, steps=steps,
                          instructions=instructions, failure=None if success else failure)
 
 

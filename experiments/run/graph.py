@@ -16,11 +16,14 @@ from typing import Any, TypeVar
 from omegaconf import DictConfig, OmegaConf
 
 from experiments.cache.code_keys import code_key, stage_code_key, target_modules
-from experiments.cache.store import StageCache, read_json, spec_key, write_json_atomic
+from experiments.cache.store import StageCache, read_json, spec_key
 from experiments.config.instantiate import instantiate_component, runtime_names
 from experiments.config.validate import target_callable
 from experiments.run import components as comp
+from rdd.atomic import write_json_atomic
 from rdd.data.episode import Episode
+from rdd.data.native import load_episode
+from rdd.encoders.cache import EmbeddingCache
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -64,6 +67,8 @@ class Run:
         self._episode_keys: dict[str, str] = {}  # episode name -> its stage key
         self._labeler = None
         self._train_labeler = None
+        self._learned_planner = None
+        self.planner_target = target_callable(cfg.planner, "planner")  # resolved once per run
         self.env_info = comp.env_info(cfg.env)
         self.eval_tasks = self._eval_tasks()
         self.pretrain_tasks = self._pretrain_tasks()
@@ -118,7 +123,7 @@ class Run:
 
     def embedding_cache(self):
         """The shared on-disk embedding cache (the runtime object ``cache``)."""
-        return comp.embedding_cache(Path(self.cfg.paths.cache_dir) / "embeddings")
+        return EmbeddingCache(Path(self.cfg.paths.cache_dir) / "embeddings")
 
     # --- stages ----------------------------------------------------------------------------------
     def demos_key(self, task: str) -> str:
@@ -146,7 +151,7 @@ class Run:
         for d in dirs:
             key = spec_key({"demos": env_key, "episode": d.name, "split": split})
             if key not in self._episode_cache:
-                ep = comp.load_episode(d)
+                ep = load_episode(d)
                 self._episode_cache[key] = ep
                 self._episode_keys[ep.name] = key
             out.append(self._episode_cache[key])
@@ -274,7 +279,13 @@ class Run:
 
     def planner_learned(self) -> bool:
         """Whether the planner is a trained model (base + LoRA stages) rather than the oracle."""
-        return bool(getattr(target_callable(self.cfg.planner, "planner"), "learned", True))
+        return bool(getattr(self.planner_target, "learned", True))
+
+    def learned_planner(self):
+        """The learned planner of the config (its settings and training steps), built once per run."""
+        if self._learned_planner is None:
+            self._learned_planner = instantiate_component(self.cfg.planner, "planner")
+        return self._learned_planner
 
     def decomposes(self) -> bool:
         """Whether this run decomposes the validation demos (to finetune a learned planner)."""

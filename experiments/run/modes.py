@@ -8,14 +8,14 @@ from typing import Any
 import numpy as np
 
 from experiments.cache.code_keys import target_modules
-from experiments.cache.store import read_json, write_json_atomic
+from experiments.cache.store import read_json
 from experiments.config.instantiate import instantiate_component
-from experiments.config.validate import target_callable
 from experiments.report.result_blocks import decomposition_block, planner_eval_block
 from experiments.report.results import average_success, per_task_success
 from experiments.run import components as comp
 from experiments.run import planner_stages
 from experiments.run.graph import Run, finetunes
+from rdd.atomic import write_json_atomic
 
 
 def decompose_only(run: Run, results: dict[str, Any]) -> None:
@@ -38,17 +38,16 @@ def hierarchical(run: Run, results: dict[str, Any]) -> None:
         base_dir, adapter_dir, planner_key, info = planner_stages.planner_stage(run)
         if "decompositions" in info:
             results["decomposition"] = decomposition_block(info["decompositions"])
-        view = comp.planner_view(run.cfg.planner)
+        view = run.learned_planner().view
 
         def make_planner() -> Any:
-            return comp.load_planner(run.cfg.planner, base_dir, adapter_dir)
+            return comp.load_planner(run.learned_planner(), base_dir, adapter_dir)
     else:
         plans, planner_key, plan_rows = planner_stages.oracle_plans(run, seeds)
         results["oracle"] = {"expert_success": {
             t: float(np.mean([r["expert_success"] for r in plan_rows if r["task"] == t]))
             for t in run.eval_tasks}}
-        planner_cls = target_callable(run.cfg.planner, "planner")
-        view = str(getattr(planner_cls, "view", "front"))
+        view = str(getattr(run.planner_target, "view", "front"))
 
         def make_planner() -> Any:
             return instantiate_component(run.cfg.planner, "planner", plans=plans)
@@ -107,10 +106,10 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
 
     def planners() -> dict[str, Any]:
         if not loaded:
-            loaded["base"] = comp.load_planner(run.cfg.planner, base_dir, None)
+            loaded["base"] = comp.load_planner(run.learned_planner(), base_dir, None)
             if adapter_dir is not None:
                 # one base describes the scenes for both (same model, same greedy captions)
-                loaded["finetuned"] = comp.load_planner(run.cfg.planner, base_dir, adapter_dir,
+                loaded["finetuned"] = comp.load_planner(run.learned_planner(), base_dir, adapter_dir,
                                                         describer=loaded["base"])
         return loaded
 
@@ -122,7 +121,7 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
                 **({"scenes": 2} if describes else {})}
 
         def build(tmp: Path, eps=eps) -> None:
-            examples = comp.planner_test_examples(run.cfg.planner, eps)
+            examples = run.learned_planner().examples(eps)
             out = [{"task": e.task, "episode": e.episode, "frame": int(e.frame), "goal": e.goal,
                     "previous": e.previous_instruction, "target": e.target} for e in examples]
             for name, planner in planners().items():

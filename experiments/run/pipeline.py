@@ -14,7 +14,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.cache.store import StageCache, write_json_atomic
+from experiments.cache.store import StageCache
 from experiments.config.instantiate import check_call, runtime_names
 from experiments.config.validate import validate_config
 from experiments.report.result_blocks import main_metric, tracker_metrics
@@ -23,6 +23,7 @@ from experiments.run import modes
 from experiments.run.graph import Run, Unavailable
 from experiments.run.job import hardware, hydra_info, set_threads
 from experiments.run.logs import quiet_libraries, show_progress, stage_lines
+from rdd.atomic import write_json_atomic
 
 log = logging.getLogger(__name__)
 

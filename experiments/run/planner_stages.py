@@ -12,11 +12,13 @@ from pathlib import Path
 from typing import Any
 
 from experiments.cache.code_keys import target_modules
-from experiments.cache.store import read_json, spec_key, write_json_atomic
+from experiments.cache.store import read_json, spec_key
 from experiments.config.instantiate import instantiate_component
 from experiments.run import components as comp
 from experiments.run.graph import Run, each_free_first, finetunes, with_segments
 from experiments.run.logs import progress
+from rdd.atomic import write_json_atomic
+from rdd.metrics import miou
 
 
 def decompositions(run: Run, tasks: list[str]) -> tuple[list[dict[str, Any]], str]:
@@ -57,7 +59,7 @@ def _task_decompositions(run: Run, task: str, parts: dict[str, Any], wait: bool)
                 "segments": [list(s) for s in segs],
                 "instructions": [labeler.label(ep, s) for s in segs],
                 "expert_segments": [list(s) for s in gt],
-                "miou": float(comp.miou(segs, gt)),
+                "miou": float(miou(list(segs), list(gt))),
                 "novelty": None if dec.novelty is None else float(dec.novelty),
                 "seconds": seconds,
             })
@@ -77,11 +79,11 @@ def base_planner_dir(run: Run) -> tuple[Path, str]:
         run.eval_tasks, "train", int(run.cfg.data.train_episodes_per_task))
     corpus = sorted({s for e in eps + vocab_eps for s in e.instructions}
                     | {e.goal for e in eps + vocab_eps})
-    spec = {"planner": comp.planner_base_spec(run.cfg.planner), "data": data_key,
+    spec = {"planner": run.learned_planner().base_spec(), "data": data_key,
             "vocabulary": vocab_key}
     return run.cache.get_or_build(
         "planner_base", spec,
-        lambda tmp: comp.pretrain_planner(run.cfg.planner, eps, corpus, tmp, vocab_eps),
+        lambda tmp: comp.pretrain_planner(run.learned_planner(), eps, corpus, tmp, vocab_eps),
         modules=tuple(target_modules(run.node("planner"))))
 
 
@@ -103,7 +105,7 @@ def planner_stage(run: Run) -> tuple[Path, Path | None, str, dict[str, Any]]:
             "seed": int(run.cfg.seed)}
     path, key = run.cache.get_or_build(
         "planner_finetune", spec,
-        lambda tmp: comp.finetune_planner(run.cfg.planner, base_dir, eps, int(run.cfg.seed), tmp))
+        lambda tmp: comp.finetune_planner(run.learned_planner(), base_dir, eps, int(run.cfg.seed), tmp))
     info["finetune"] = key
     return base_dir, path, key, info
 

@@ -11,7 +11,7 @@ from synthetic_world import make_episodes  # noqa: E402
 from planner.captions import CAPTION_QUESTION  # noqa: E402
 from planner.config import PlannerConfig  # noqa: E402
 from planner.dataset import PlannerExample  # noqa: E402
-from planner.planner import Planner  # noqa: E402
+from planner.planner import VLMPlanner  # noqa: E402
 from planner.train import finetune_lora, pretrain_base, training_examples  # noqa: E402
 
 
@@ -33,7 +33,7 @@ def test_shared_describer_captions_each_image_once_and_answers_the_same(tmp_path
     adapter = finetune_lora(cfg, base_dir, tune, tmp_path / "lora", seed=0, progress=False)
 
     asked: list[int] = []
-    base = Planner(cfg, base_dir)
+    base = VLMPlanner(cfg, base_dir)
     predict = base.predict
 
     def counting(queries, *args, **kwargs):
@@ -41,13 +41,13 @@ def test_shared_describer_captions_each_image_once_and_answers_the_same(tmp_path
         return predict(queries, *args, **kwargs)
 
     monkeypatch.setattr(base, "predict", counting)
-    shared = Planner(cfg, base_dir, adapter, describer=base)
+    shared = VLMPlanner(cfg, base_dir, adapter, describer=base)
     images = {e.image.tobytes() for e in tune}
     base_preds, _ = base.hits(tune)
     shared_preds, _ = shared.hits(tune)
     assert len(asked) == len(images)  # the second planner's scenes came from the first's captions
-    own_preds, _ = Planner(cfg, base_dir, adapter).hits(tune)  # its own copy of the base describing
+    own_preds, _ = VLMPlanner(cfg, base_dir, adapter).hits(tune)  # its own copy of the base describing
     assert shared_preds == own_preds
-    assert base_preds == Planner(cfg, base_dir).hits(tune)[0]
+    assert base_preds == VLMPlanner(cfg, base_dir).hits(tune)[0]
     with pytest.raises(ValueError, match="describer must be a base planner"):
-        Planner(cfg, base_dir, adapter, describer=shared)
+        VLMPlanner(cfg, base_dir, adapter, describer=shared)

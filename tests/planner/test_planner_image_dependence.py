@@ -15,7 +15,7 @@ pytest.importorskip("accelerate")
 from synthetic_world import make_episode, make_episodes  # noqa: E402
 
 from planner.config import PlannerConfig  # noqa: E402
-from planner.planner import Planner  # noqa: E402
+from planner.planner import VLMPlanner  # noqa: E402
 from planner.train import pretrain_base, training_examples  # noqa: E402
 
 
@@ -38,7 +38,7 @@ def test_same_text_different_image_gives_a_different_next_instruction(tmp_path):
     # (0.33 on the held-out scenes, measured), on its own it has (40/40).
     train = make_episodes(["open_drawer"], range(48))
     base = pretrain_base(cfg, training_examples(train, cfg.pretrain), tmp_path / "base", progress=False)
-    planner = Planner(cfg, base)
+    planner = VLMPlanner(cfg, base)
 
     held_out = range(1000, 1040)
     answers = {}
@@ -84,7 +84,7 @@ def test_smollm2_planner_reads_the_image(tmp_path, monkeypatch):
     assert {ex.target for ex in first} == {f"move to the drawer handle on the {s}" for s in ("left", "right")}
     base = pretrain_base(cfg, first, tmp_path / "base", progress=False)
     adapter = finetune_lora(cfg, base, first, tmp_path / "lora", seed=0, progress=False)
-    planner = Planner(cfg, base, adapter)
+    planner = VLMPlanner(cfg, base, adapter)
 
     held_out = range(1000, 1030)
     goal = make_episode("open_drawer", 1000, image_size=224).goal

@@ -12,7 +12,7 @@ pytest.importorskip("accelerate")
 from synthetic_world import make_episodes  # noqa: E402
 
 from planner.config import PlannerConfig  # noqa: E402
-from planner.planner import Planner  # noqa: E402
+from planner.planner import VLMPlanner  # noqa: E402
 from planner.train import finetune_lora, pretrain_base, training_examples  # noqa: E402
 
 
@@ -58,8 +58,8 @@ def test_pretrain_finetune_save_load_infer(tmp_path, kind):
         pretrain_base(cfg, pre, base, progress=False)
     assert (adapter / "adapter_model.safetensors").read_bytes() == before
 
-    tuned = Planner(cfg, base, adapter)
-    plain = Planner(cfg, base)
+    tuned = VLMPlanner(cfg, base, adapter)
+    plain = VLMPlanner(cfg, base)
     ex = tune[1]
     out = tuned.next_instruction(ex.image, ex.goal, ex.previous_instruction)
     assert isinstance(out, str) and out.strip() == out and out

@@ -104,7 +104,7 @@ def test_smoke_scale_base_and_lora(smol_cache, monkeypatch, tmp_path):
 
     from synthetic_world import make_episodes
 
-    from planner.planner import Planner
+    from planner.planner import VLMPlanner
     from planner.train import finetune_lora, pretrain_base, training_examples
 
     monkeypatch.setenv("RDD_CACHE_DIR", str(smol_cache.parents[1]))
@@ -125,5 +125,5 @@ def test_smoke_scale_base_and_lora(smol_cache, monkeypatch, tmp_path):
     adapter = finetune_lora(cfg, base, tune, tmp_path / "lora", seed=0, progress=False)
     losses = json.loads((adapter / "train_log.json").read_text())["epoch_losses"]
     assert losses[-1] < losses[0]
-    preds, _ = Planner(cfg, base, adapter).hits(tune)
+    preds, _ = VLMPlanner(cfg, base, adapter).hits(tune)
     assert len(preds) == len(tune) and all(isinstance(p, str) and p for p in preds)
