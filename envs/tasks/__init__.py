@@ -1,4 +1,4 @@
-"""The task registry: name -> Task class (one module per task)."""
+"""The tasks of the suite: name -> Task class, one module each, registered in ``rdd.registry`` as kind ``task``."""
 
 from __future__ import annotations
 
@@ -7,21 +7,11 @@ import sys
 from pathlib import Path
 
 from envs.tasks.base import Task
-from envs.tasks.close_jar import CloseJar
-from envs.tasks.insert_onto_square_peg import InsertOntoSquarePeg
-from envs.tasks.light_bulb_in import LightBulbIn
-from envs.tasks.meat_off_grill import MeatOffGrill
-from envs.tasks.open_drawer import OpenDrawer
-from envs.tasks.place_shape_in_shape_sorter import PlaceShapeInShapeSorter
-from envs.tasks.push_buttons import PushButtons
-from envs.tasks.put_item_in_drawer import PutItemInDrawer
-from envs.tasks.stack_blocks import StackBlocks
-from envs.tasks.turn_tap import TurnTap
+from rdd import registry
 
-TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (
-    OpenDrawer, PutItemInDrawer, StackBlocks, MeatOffGrill, PushButtons, TurnTap,
-    PlaceShapeInShapeSorter, CloseJar, InsertOntoSquarePeg, LightBulbIn,
-)}
+# A task is one module of this package whose Task subclass is registered as ``task`` NAME.
+registry.define_kind("task", ("envs.tasks",), "envs.tasks.base:Task")
+TASKS: dict[str, type[Task]] = dict(sorted(registry.entries("task").items(), key=lambda kv: (kv[1].order, kv[0])))
 
 
 def get_task(name: str) -> Task:

@@ -83,6 +83,7 @@ class Task(ABC):
 
     name: ClassVar[str] = ""
     pretraining: ClassVar[bool] = False  # held out of evaluation averages (planner pretraining)
+    order: ClassVar[int] = 100  # place in the suite's listings (the paper's tables order its tasks 1-7)
     description: ClassVar[str] = ""
 
     def __init__(self) -> None:

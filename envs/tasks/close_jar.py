@@ -8,16 +8,19 @@ import numpy as np
 
 from envs.scene import TABLE_TOP, Scene
 from envs.tasks.base import Task, Waypoint, grasp_yaw, sample_positions
+from rdd.registry import register
 
 COLORS = ("red", "green", "blue", "yellow")
 JAR_R, JAR_H = 0.035, 0.09
 LID_R, LID_H = 0.038, 0.025
 
 
+@register("task", "close_jar")
 class CloseJar(Task):
     """Pick up the lid and put it on the named jar."""
 
     name = "close_jar"
+    order = 8
     pretraining = True
     description = "close the jar of the named colour with the lid"
 

@@ -8,16 +8,19 @@ import numpy as np
 
 from envs.scene import TABLE_TOP, Scene
 from envs.tasks.base import HOME_FINGER_YAW, Task, Waypoint, yaw_of
+from rdd.registry import register
 
 COLORS = ("red", "green", "blue")
 RING_HALF, BAR, RING_H = 0.06, 0.02, 0.03
 PEG_HALF, PEG_H = 0.012, 0.1
 
 
+@register("task", "insert_onto_square_peg")
 class InsertOntoSquarePeg(Task):
     """Pick the square ring by one side and slide it down over the named peg."""
 
     name = "insert_onto_square_peg"
+    order = 9
     pretraining = True
     description = "put the square ring on the peg of the named colour"
 

@@ -8,6 +8,7 @@ import numpy as np
 
 from envs.scene import TABLE_TOP, Scene
 from envs.tasks.base import Task, Waypoint, grasp_yaw, sample_positions
+from rdd.registry import register
 
 COLORS = ("red", "green", "blue", "yellow")
 LAMP_TOP = 0.08  # top of the lamp body = floor of the socket
@@ -15,10 +16,12 @@ SOCKET_H = 0.03
 BULB_BASE_R, BULB_BASE_H, GLASS_R = 0.016, 0.04, 0.028
 
 
+@register("task", "light_bulb_in")
 class LightBulbIn(Task):
     """Pick the named bulb by its glass and lower its base into the socket."""
 
     name = "light_bulb_in"
+    order = 10
     pretraining = True
     description = "put the light bulb of the named colour into the lamp"
 

@@ -8,6 +8,7 @@ import numpy as np
 
 from envs.scene import TABLE_TOP, Scene
 from envs.tasks.base import Task, Waypoint, grasp_yaw, yaw_of
+from rdd.registry import register
 
 GRILL_TOP = 0.068
 MEATS = {
@@ -17,10 +18,12 @@ MEATS = {
 }
 
 
+@register("task", "meat_off_grill")
 class MeatOffGrill(Task):
     """Pick the named meat from the grill and place it on the plate."""
 
     name = "meat_off_grill"
+    order = 4
     description = "take the named meat off the grill and put it on the plate"
 
     def variations(self):

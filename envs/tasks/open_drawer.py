@@ -9,14 +9,17 @@ import numpy as np
 from envs.scene import Scene
 from envs.tasks.base import Task, Waypoint
 from envs.tasks.cabinet import CAB_X, CAB_Y, CAB_YAW, DRAWERS, build_cabinet, pull_drawer_waypoints
+from rdd.registry import register
 
 OPEN_ENOUGH = 0.12
 
 
+@register("task", "open_drawer")
 class OpenDrawer(Task):
     """Grasp the named drawer's handle and pull it open."""
 
     name = "open_drawer"
+    order = 1
     description = "open the named drawer of a three-drawer cabinet"
 
     def variations(self):

@@ -8,6 +8,7 @@ import numpy as np
 
 from envs.scene import TABLE_TOP, Scene
 from envs.tasks.base import Task, Waypoint, grasp_yaw, sample_positions, yaw_of
+from rdd.registry import register
 
 PLATE_Z = 0.12  # top of the sorter's lid
 HALF_X, HALF_Y = 0.06, 0.15
@@ -20,10 +21,12 @@ SHAPES = {
 HOLE_Y = {"cube": -0.09, "cylinder": 0.0, "cuboid": 0.09}
 
 
+@register("task", "place_shape_in_shape_sorter")
 class PlaceShapeInShapeSorter(Task):
     """Pick the named shape and drop it through the matching hole of the sorter."""
 
     name = "place_shape_in_shape_sorter"
+    order = 7
     description = "put the named shape into the shape sorter"
 
     def variations(self):

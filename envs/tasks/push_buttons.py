@@ -9,6 +9,7 @@ import numpy as np
 from envs.poses import top_down_quat
 from envs.scene import TABLE_TOP, Scene
 from envs.tasks.base import Task, Waypoint, grasp_yaw, sample_positions
+from rdd.registry import register
 
 COLORS = ("red", "green", "blue", "yellow", "purple", "cyan")
 BASE_H = 0.02
@@ -21,10 +22,12 @@ UNLIT, LIT = "grey", "white"  # a button's base lights up once it has been press
 FINGERTIP = 0.011  # closed fingertips reach this far below the grasp point
 
 
+@register("task", "push_buttons")
 class PushButtons(Task):
     """Three buttons; push 1, 2 or 3 of them in the order the goal gives."""
 
     name = "push_buttons"
+    order = 5
     description = "push the named buttons in order"
 
     def variations(self):

@@ -18,14 +18,17 @@ from envs.tasks.cabinet import (
     build_cabinet,
     pull_drawer_waypoints,
 )
+from rdd.registry import register
 
 ITEM_HALF = 0.02
 
 
+@register("task", "put_item_in_drawer")
 class PutItemInDrawer(Task):
     """Open the named drawer, pick the item from the cabinet top, drop it in the drawer."""
 
     name = "put_item_in_drawer"
+    order = 2
     description = "open the named drawer and put the item in it"
 
     def variations(self):

@@ -8,16 +8,19 @@ import numpy as np
 
 from envs.scene import TABLE_TOP, Scene
 from envs.tasks.base import HOME_FINGER_YAW, Task, Waypoint, grasp_yaw, sample_positions, yaw_of
+from rdd.registry import register
 
 HALF = 0.025
 COLORS = ("red", "green", "blue", "yellow")
 WORDS = {2: "two", 3: "three"}
 
 
+@register("task", "stack_blocks")
 class StackBlocks(Task):
     """Pick N blocks of one colour (among distractors) and stack them on the plate."""
 
     name = "stack_blocks"
+    order = 3
     description = "stack N blocks of the named colour on the grey plate"
 
     def variations(self):

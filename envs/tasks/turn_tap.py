@@ -9,16 +9,19 @@ import numpy as np
 from envs.poses import top_down_quat
 from envs.scene import TABLE_TOP, Scene
 from envs.tasks.base import HOME_FINGER_YAW, Task, Waypoint
+from rdd.registry import register
 
 BODY_TOP = 0.09
 HANDLE_Z = 0.03  # handle bar height above its joint
 TURNED = np.deg2rad(70)
 
 
+@register("task", "turn_tap")
 class TurnTap(Task):
     """Grasp the named tap handle from above and rotate it a quarter turn."""
 
     name = "turn_tap"
+    order = 6
     description = "turn the left or right tap handle"
 
     def variations(self):

@@ -240,6 +240,17 @@ def _raw(node: DictConfig, key: Any) -> Any:
         return None
 
 
+def _options_owner(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Whose parameters a node's keys are: a classmethod factory that passes ``**options`` on to its
+    class (``RDDDecomposer.calibrated``) has its class's options and checks."""
+    owner = getattr(fn, "__self__", None)
+    try:
+        forwards = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in inspect.signature(fn).parameters.values())
+    except (TypeError, ValueError):
+        return fn
+    return owner if inspect.isclass(owner) and forwards else fn
+
+
 def check_component_node(path: str, node: DictConfig, fn: Any = None) -> None:
     """A ``_target_`` node: its target imports, every key is a parameter of it, of the hinted type
     (``fn``: the target, when the caller has resolved it already)."""
@@ -248,6 +259,7 @@ def check_component_node(path: str, node: DictConfig, fn: Any = None) -> None:
             fn = target_callable(node, path)
         except (ImportError, ValueError) as exc:
             raise ConfigError(f"{path}._target_: {exc}") from None
+    fn = _options_owner(fn)
     try:
         params = inspect.signature(fn).parameters
     except (TypeError, ValueError):

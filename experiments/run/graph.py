@@ -268,9 +268,12 @@ class Run:
             wait=wait)
 
     def uses_calibration(self) -> bool:
-        """Whether the decomposer takes its options from the database's calibration."""
+        """Whether the decomposer takes its options from the database's calibration (its target is a
+        factory marked ``uses_calibration``, as ``RDDDecomposer.calibrated`` is)."""
         node = self.cfg.get("decomposer")
-        return bool(node is not None and node.get("use_calibration", False))
+        if node is None or not node.get("_target_"):
+            return False
+        return bool(getattr(target_callable(node, "decomposer"), "uses_calibration", False))
 
     def runtime(self, node: DictConfig, group: str) -> dict[str, Any]:
         """The runtime objects the component of ``node`` takes, each under its one name."""

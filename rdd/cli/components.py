@@ -39,7 +39,7 @@ from rdd.registry import (
 # harness's conf/decomposer/*.yaml name as _target_.
 DECOMPOSERS = tuple(available("decomposer"))
 # Parameters the CLI fills itself (from --db, --encoder, --views, --no-calibration), never --option.
-SET_BY_CLI = (*RUNTIME_OBJECTS, "views", "use_calibration")
+SET_BY_CLI = (*RUNTIME_OBJECTS, "views")
 # Flags that are decomposer parameters. These have defaults, so an --option of the same name wins...
 FLAG_DEFAULTS = ("stopping_delta", "velocity_source")
 # ...while these are unset unless typed, and when typed they win over --option.
@@ -82,15 +82,15 @@ def build_decomposer(name: str, options: Mapping[str, Any], args: argparse.Names
     check_option_names("decomposer", cls, kwargs, reserved=SET_BY_CLI)
     runtime: dict[str, Any] = {}
     db = None
+    make = cls  # or its `calibrated` factory: the database's calibrated options unless given here
     if "cache" in takes:
         runtime["cache"] = make_cache(args)
     if "database" in takes:
         from rdd.database.model import SubtaskDatabase
 
         db = runtime["database"] = SubtaskDatabase.load(args.db)
-        if "use_calibration" in params:
-            # The database's calibrated alpha/min_len/max_len unless given here (or --no-calibration).
-            kwargs["use_calibration"] = bool(db.meta.get("calibration")) and not args.no_calibration
+        if hasattr(cls, "calibrated") and db.meta.get("calibration") and not args.no_calibration:
+            make = cls.calibrated
     if "views" in params:
         if db is not None:  # the views the database's entries were embedded with
             kwargs["views"] = views or tuple(db.meta.get("views") or DEFAULT_VIEWS)
@@ -104,11 +104,11 @@ def build_decomposer(name: str, options: Mapping[str, Any], args: argparse.Names
             raise UsageError(f"--db {args.db} records no encoder; pass --encoder")
         runtime["encoder"] = make_encoder(enc_name, parse_options(args.encoder_option, "--encoder-option"))
     try:
-        decomposer = construct(cls, runtime, f"decomposer {name}", **kwargs)
+        decomposer = construct(make, runtime, f"decomposer {name}", **kwargs)
     except InputError as exc:
         if exc.option in given_as:
             raise UsageError(f"{given_as[exc.option]}: {exc}") from exc
-        if kwargs.get("use_calibration"):  # a value the database's calibration chose
+        if make is not cls:  # a value the database's calibration chose
             raise UsageError(f"--db {args.db} (its calibration; --no-calibration ignores it): {exc}") from exc
         raise
     config: dict[str, Any] = dict(defaults)

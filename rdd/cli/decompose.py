@@ -150,12 +150,9 @@ def make_labeler(args: argparse.Namespace):
 
 def _option_labeler(name: str, options: dict[str, Any]):
     """The signals or vlm labeler built from ``--labeler-option`` pairs; a bad one is a one-line error."""
-    from rdd.registry import check_option_names
+    from rdd.registry import check_option_names, component
 
-    if name == "signals":
-        from rdd.labelers.signals import SignalsLabeler as cls
-    else:
-        from rdd.labelers.vlm import VLMLabeler as cls
+    cls = component("labeler", name)
     try:
         check_option_names("labeler", cls, options)
         return cls(**options)

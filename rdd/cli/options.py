@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from rdd.data.load import FORMATS
+from rdd.data.load import formats
 from rdd.errors import UsageError
 
 
 def data_args(p: argparse.ArgumentParser, data_required: bool = True) -> None:
     """``--format``, ``--data``, ``--reader-option``, ``--include``, ``--exclude``."""
-    p.add_argument("--format", choices=FORMATS, required=True, help="episode format of --data")
+    p.add_argument("--format", choices=formats(), required=True, help="episode format of --data")
     p.add_argument("--data", required=data_required, help="one episode or a folder of episodes")
     p.add_argument("--reader-option", action="append", metavar="KEY=VALUE",
                    help="reader keyword (JSON value); the options of each format are listed below")

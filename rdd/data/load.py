@@ -1,33 +1,40 @@
-"""One entry point for every episode format: ``load_episodes(format, path, **options)``."""
+"""One entry point for every episode format: ``load_episodes(format, path, **options)``.
+
+A format is a reader module: its ``load_episodes`` is registered as ``reader`` NAME (``rdd.registry``)
+and ``episode_names`` stands beside it; reader options are the keyword arguments of both.
+"""
 
 from __future__ import annotations
 
+import importlib
+import inspect
 from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
+from rdd import registry
 from rdd.data.episode import Episode
 
-FORMATS = ("rlbench", "lerobot", "native")
+# Parameters of a reader's load_episodes that are not reader options.
+_NOT_OPTIONS = ("names",)
+
+
+def formats() -> list[str]:
+    """The episode formats there are readers for."""
+    return registry.available("reader")
 
 
 def _reader(format: str, options: dict[str, Any]):
     """The reader module of ``format``, after checking that it takes ``options``."""
-    if format == "rlbench":
-        from rdd.data import rlbench
-
-        return rlbench
-    if format == "lerobot":
-        from rdd.data.lerobot import reader as lerobot
-
-        return lerobot
-    if format == "native":
-        from rdd.data import native
-
-        if options:
-            raise TypeError(f"the native format takes no reader options, got {sorted(options)}")
-        return native
-    raise ValueError(f"unknown episode format {format!r}; choose one of {', '.join(FORMATS)}")
+    try:
+        load = registry.component("reader", format)
+    except ValueError:
+        raise ValueError(f"unknown episode format {format!r}; choose one of {', '.join(formats())}") from None
+    params = list(registry.parameters(load))[1:]  # the first is the path
+    if options and not [p for p in params if p not in _NOT_OPTIONS] and not any(
+            p.kind is inspect.Parameter.VAR_KEYWORD for p in inspect.signature(load).parameters.values()):
+        raise TypeError(f"the {format} format takes no reader options, got {sorted(options)}")
+    return importlib.import_module(load.__module__)
 
 
 def episode_names(format: str, path: str | Path, **options: Any) -> list[str]:

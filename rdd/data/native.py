@@ -25,6 +25,7 @@ from rdd.data._walk import find_named
 from rdd.data.episode import Episode
 from rdd.data.frames import update_with_file
 from rdd.errors import InputError
+from rdd.registry import register
 
 FORMAT_NAME = "rdd-native-episode"
 FORMAT_VERSION = 1
@@ -331,6 +332,7 @@ def episode_names(folder: str | Path) -> list[str]:
     return [_read_header(d)["name"] for d in _episode_dirs(Path(folder))]
 
 
+@register("reader", "native")
 def load_episodes(folder: str | Path, names: Collection[str] | None = None) -> list[Episode]:
     """All native episodes under ``folder`` at any depth (e.g. ``<split>/<task>/<episode>/``),
     sorted by relative path, or ``folder`` itself if it is one. Hidden (temporary) folders are skipped.

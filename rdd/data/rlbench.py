@@ -20,6 +20,7 @@ from rdd.data._walk import find_named
 from rdd.data.episode import Episode
 from rdd.data.frames import ImageFileFrames
 from rdd.errors import InputError
+from rdd.registry import register
 
 LOW_DIM_FILE = "low_dim_obs.pkl"
 DESCRIPTIONS_FILE = "variation_descriptions.pkl"
@@ -250,6 +251,7 @@ def episode_names(path: str | Path, views: Sequence[str] | None = ("front", "wri
     return [name or d.name for name, d in _episode_dirs(Path(path))]
 
 
+@register("reader", "rlbench")
 def load_episodes(path: str | Path, views: Sequence[str] | None = ("front", "wrist"),
                   names: Collection[str] | None = None) -> list[Episode]:
     """Every RLBench episode under ``path`` (an episode folder, or any folder above episodes); only

@@ -21,6 +21,7 @@ from rdd.data.hand_events import (
     still_runs,
 )
 from rdd.decomposers.base import Decomposer, Decomposition
+from rdd.registry import register
 from rdd.segments import keyframes_to_segments
 
 
@@ -166,6 +167,7 @@ def hand_rule_segments(episode: Episode, delta: float, stopping_fraction: float,
     return list(pairwise(bounds)), meta
 
 
+@register("decomposer", "expert")
 class ExpertDecomposer(Decomposer):
     """Segments at the RLBench keyframes of an episode's gripper state and velocities.
 

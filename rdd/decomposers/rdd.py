@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from rdd.checks import FLAG, check_options, number, one_of, whole
+from rdd.checks import check_options, number, one_of, whole
 from rdd.core import scoring
 from rdd.core.solver import candidate_intervals, max_sum_partition_dense
 from rdd.data.episode import Episode
@@ -33,36 +33,28 @@ from rdd.encoders.base import Encoder
 from rdd.encoders.embed import DEFAULT_VIEWS, episode_frame_vectors
 from rdd.errors import InputError
 from rdd.index import NearestIndex, load_index
+from rdd.registry import register
 
 MODES = ("default", "ood")
 PAPER_DEFAULTS: dict[str, Any] = {"alpha": 1.0, "min_len": 2, "max_len": None}
 DEFAULT_BETA = {"default": 0.0, "ood": 0.1}
 
 
-class _Unset:
-    """Marks an option the caller left out (so a calibrated value may fill it)."""
-
-    def __repr__(self) -> str:
-        return "calibrated-or-paper"
-
-
-UNSET: Any = _Unset()
-
-
+@register("decomposer", "rdd")
 class RDDDecomposer(Decomposer):
     """Retrieval-based demonstration decomposer over a :class:`SubtaskDatabase`.
 
-    ``alpha``, ``min_len`` and ``max_len`` left out take the paper's values (1, 2, unbounded), or
-    with ``use_calibration=True`` the values the database's calibration chose (``rdd.core.calibrate``);
-    an explicitly given value always wins. ``beta`` left out is 0 in the default mode and 0.1 in
-    the OOD mode. Frame vectors follow the database's ``normalize_views`` setting.
+    The defaults are the paper's (``alpha`` 1, ``min_len`` 2, ``max_len`` unbounded);
+    :meth:`calibrated` takes the values the database's calibration chose (``rdd.core.calibrate``)
+    instead. ``beta`` left out is 0 in the default mode and 0.1 in the OOD mode. Frame vectors follow
+    the database's ``normalize_views`` setting.
     """
 
     name = "rdd"
     OPTION_RULES = {
         "mode": one_of(*MODES), "alpha": number(0.0, scoring.ALPHA_MAX),
         "beta": number(0.0, scoring.ALPHA_MAX, allow_none=True), "min_len": whole(1),
-        "max_len": whole(1, allow_none=True), "use_calibration": FLAG,
+        "max_len": whole(1, allow_none=True),
     }
 
     @classmethod
@@ -91,29 +83,25 @@ class RDDDecomposer(Decomposer):
         self,
         database: SubtaskDatabase,
         encoder: Encoder | None = None,
-        alpha: float = UNSET,
+        alpha: float = PAPER_DEFAULTS["alpha"],
         beta: float | None = None,
         mode: str = "default",
-        min_len: int = UNSET,
-        max_len: int | None = UNSET,
+        min_len: int = PAPER_DEFAULTS["min_len"],
+        max_len: int | None = PAPER_DEFAULTS["max_len"],
         index: str | NearestIndex = "exact",
         views: Sequence[str] = DEFAULT_VIEWS,
         index_options: Mapping[str, Any] | None = None,
         uvd_options: Mapping[str, Any] | None = None,
         cache=None,
-        use_calibration: bool = False,
     ) -> None:
         if not isinstance(database, SubtaskDatabase):
             raise TypeError(f"database must be a SubtaskDatabase, got {type(database).__name__}")
         self.check_options(mode=mode)
-        given = {k: v for k, v in (("alpha", alpha), ("min_len", min_len), ("max_len", max_len))
-                 if v is not UNSET}
-        base = database.calibrated_options() if use_calibration else PAPER_DEFAULTS
-        merged = {**PAPER_DEFAULTS, **base, **given}
-        self.option_source = {k: ("given" if k in given else "calibration" if use_calibration else "paper")
-                              for k in PAPER_DEFAULTS}
-        opts = self.check_options(alpha=merged["alpha"], beta=DEFAULT_BETA[mode] if beta is None else beta,
-                                  min_len=merged["min_len"], max_len=merged["max_len"], uvd_options=uvd_options)
+        chosen = {"alpha": alpha, "min_len": min_len, "max_len": max_len}
+        # Where each value came from, as the output records it (calibrated() says "calibration").
+        self.option_source = {k: "paper" if chosen[k] == PAPER_DEFAULTS[k] else "given" for k in PAPER_DEFAULTS}
+        opts = self.check_options(alpha=alpha, beta=DEFAULT_BETA[mode] if beta is None else beta,
+                                  min_len=min_len, max_len=max_len, uvd_options=uvd_options)
         self.alpha, self.beta = opts["alpha"], opts["beta"]
         self.min_len, self.max_len = opts["min_len"], opts["max_len"]
         self.mode = mode
@@ -137,6 +125,20 @@ class RDDDecomposer(Decomposer):
             database.begin, database.end, cache_dir=database.directory,
             key=database.fingerprint() if database.directory is not None else None,
         )
+
+    @classmethod
+    def calibrated(cls, database: SubtaskDatabase, encoder: Encoder | None = None, cache=None,
+                   **options: Any) -> RDDDecomposer:
+        """RDD with the ``alpha``, ``min_len`` and ``max_len`` the database's calibration chose
+        (``rdd.core.calibrate``; a database without one is an error); ``options`` given here win."""
+        if not isinstance(database, SubtaskDatabase):
+            raise TypeError(f"database must be a SubtaskDatabase, got {type(database).__name__}")
+        decomposer = cls(database, encoder, cache=cache, **{**database.calibrated_options(), **options})
+        decomposer.option_source = {k: "given" if k in options else "calibration" for k in PAPER_DEFAULTS}
+        return decomposer
+
+    # The harness builds the calibration stage for a decomposer made this way.
+    calibrated.__func__.uses_calibration = True
 
     def settings(self) -> dict[str, Any]:
         """The options in force (given, calibrated or the paper's: ``option_source`` says which) and the index."""
@@ -211,10 +213,9 @@ class RDDDecomposer(Decomposer):
             if self.mode == "default":
                 return self._result(total, segments, pos, j, ids, dist, sim, delta, meta)
             meta["default_segments"] = [list(x) for x in segments]
-            prior = scoring.uvd_prior(s, e, self._milestones(fv, e))
             end_ids, end_dist = self.index.search_ends(fv)  # nearest end frame, per end frame
             ids, dist = end_ids[e - 1], end_dist[e - 1]
-            sim = -dist + self.beta * prior
+            sim = scoring.ood_similarity(dist, s, e, self._milestones(fv, e), self.beta)  # Eq. 3.5
         else:
             # The official code adds beta * G(I) in the default mode too when beta != 0.
             sim = sim + self.beta * scoring.uvd_prior(s, e, self._milestones(fv, e))

@@ -5,6 +5,7 @@ from __future__ import annotations
 from rdd.checks import FLAG, whole
 from rdd.data.episode import Episode
 from rdd.decomposers.base import Decomposer, Decomposition
+from rdd.registry import register
 from rdd.segments import Segment
 
 
@@ -29,6 +30,7 @@ def uniform_segments(num_frames: int, n_segments: int = 10) -> list[Segment]:
     return segments
 
 
+@register("decomposer", "uniform")
 class UniformDecomposer(Decomposer):
     """Cuts every episode into ``n_segments`` equal parts (as even as integer frames allow)."""
 

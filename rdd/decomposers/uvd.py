@@ -13,6 +13,7 @@ from rdd.data.episode import Episode
 from rdd.decomposers.base import Decomposer, Decomposition
 from rdd.encoders.base import Encoder
 from rdd.encoders.embed import DEFAULT_VIEWS, episode_frame_vectors
+from rdd.registry import register
 from rdd.segments import keyframes_to_segments
 
 # UVD's own options (also RDD's uvd_options, which reach the same milestone search).
@@ -20,6 +21,7 @@ UVD_RULES = {"min_interval": whole(1), "gamma": number(0.0, exclusive_min=True),
              "window_length": whole(1, allow_none=True)}
 
 
+@register("decomposer", "uvd")
 class UVDDecomposer(Decomposer):
     """UVD applied to an episode's frame vectors (per-view L2-normalised embeddings, concatenated)."""
 

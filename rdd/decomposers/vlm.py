@@ -23,6 +23,7 @@ from rdd.labelers.vlm_backends import (
     resize_max_side,
     subsample_indices,
 )
+from rdd.registry import register
 from rdd.segments import keyframes_to_segments
 
 PROMPT = (
@@ -51,6 +52,7 @@ def parse_keyframe_indices(text: str, num_shown: int) -> list[int]:
     return clamped
 
 
+@register("decomposer", "vlm")
 class VLMDecomposer(Decomposer):
     """Asks a VLM for keyframes among up to ``max_frames`` evenly subsampled frames of one view."""
 

@@ -1,9 +1,9 @@
-"""Visual encoders: ``load_encoder(name, **options)`` builds ``rdd.encoders.<name>`` via ``rdd.registry``.
+"""Visual encoders: ``load_encoder(name, **options)`` builds the encoder registered as ``name``.
 
-Each encoder lives in its own module exposing ``build(**options) -> Encoder``; adding an encoder is
-one module plus one ``conf/encoder/<name>.yaml`` whose ``_target_`` is ``rdd.encoders.<name>.build``
-(no central table). Modules whose names start with an underscore hold shared helpers and
-architectures; ``base``, ``embed`` and ``cache`` are not encoders.
+An encoder is a factory ``build(**options) -> Encoder`` registered with
+``@rdd.registry.register("encoder", NAME)`` in a module of this package; adding one is that module
+plus one ``conf/encoder/<name>.yaml`` whose ``_target_`` is the factory (no central table). Modules
+whose names start with an underscore hold shared helpers and architectures.
 """
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ from rdd.registry import available, build
 
 
 def available_encoders() -> list[str]:
-    """Names of the encoder modules in this package."""
+    """Names of the registered encoders."""
     return available("encoder")
 
 
 def load_encoder(name: str, **options) -> Encoder:
-    """Build the encoder ``name`` (module ``rdd.encoders.<name>``, its ``build``) with ``options``."""
+    """Build the encoder registered as ``name`` with ``options``."""
     return build("encoder", name, **options)
 
 

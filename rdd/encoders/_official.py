@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from rdd.encoders._common import TorchEncoder
+from rdd.registry import register
 
 log = logging.getLogger(__name__)
 
@@ -114,8 +115,10 @@ def build_official(
     )
 
 
-def official_builder(spec: OfficialSpec):
-    """The module-level ``build(**options)`` of an official encoder: ``build_official`` bound to ``spec``."""
+def official_builder(spec: OfficialSpec, module: str):
+    """The ``build(**options)`` of module ``module``, an official encoder: ``build_official`` bound to
+    ``spec``, registered as encoder ``spec.name``."""
     build = functools.partial(build_official, spec)
     build.__doc__ = f"The ``{spec.name}`` encoder from its official checkpoint (see the module docstring)."
-    return build
+    build.__module__, build.__qualname__ = module, "build"  # its _target_: <module>.build
+    return register("encoder", spec.name)(build)

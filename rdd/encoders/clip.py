@@ -46,4 +46,4 @@ SPEC = OfficialSpec(
 )
 
 
-build = official_builder(SPEC)
+build = official_builder(SPEC, __name__)

@@ -8,6 +8,7 @@ import numpy as np
 
 from rdd.encoders._common import check_batch_size, check_images, torch_threads
 from rdd.encoders.base import Encoder
+from rdd.registry import register
 
 
 class PixelsEncoder(Encoder):
@@ -59,6 +60,7 @@ class PixelsEncoder(Encoder):
         return np.concatenate(outs, axis=0).astype(np.float32, copy=False)
 
 
+@register("encoder", "pixels")
 def build(
     size: int = 16,
     batch_size: int = 256,

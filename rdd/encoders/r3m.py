@@ -41,4 +41,4 @@ SPEC = OfficialSpec(
 )
 
 
-build = official_builder(SPEC)
+build = official_builder(SPEC, __name__)

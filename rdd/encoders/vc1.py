@@ -42,4 +42,4 @@ SPEC = OfficialSpec(
 )
 
 
-build = official_builder(SPEC)
+build = official_builder(SPEC, __name__)

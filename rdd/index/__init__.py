@@ -1,7 +1,8 @@
-"""Nearest-neighbour retrieval indexes: ``load_index(name, **options)`` builds ``rdd.index.<name>``.
+"""Nearest-neighbour retrieval indexes: ``load_index(name, **options)`` builds the index registered as ``name``.
 
-Each index is one module defining one :class:`NearestIndex` subclass (found by ``rdd.registry``)
-plus one ``conf/index/<name>.yaml`` whose ``_target_`` is that class; there is no central table to edit.
+Each index is one module defining a :class:`NearestIndex` subclass registered with
+``@rdd.registry.register("index", NAME)``, plus one ``conf/index/<name>.yaml`` whose ``_target_`` is
+that class; there is no central table to edit.
 """
 
 from __future__ import annotations
@@ -11,12 +12,12 @@ from rdd.registry import available, build
 
 
 def available_indexes() -> list[str]:
-    """Names of the index modules in this package."""
+    """Names of the registered indexes."""
     return available("index")
 
 
 def load_index(name: str, **options) -> NearestIndex:
-    """Build the (unfitted) index ``name`` (the class of module ``rdd.index.<name>``) with ``options``."""
+    """Build the (unfitted) index registered as ``name`` with ``options``."""
     return build("index", name, **options)
 
 

@@ -15,6 +15,7 @@ from rdd.atomic import atomic_path
 from rdd.checks import whole
 from rdd.errors import InputError
 from rdd.index.base import NearestIndex, interval_matrix
+from rdd.registry import register
 
 
 def _require_annoy():
@@ -27,6 +28,7 @@ def _require_annoy():
     return AnnoyIndex
 
 
+@register("index", "annoy")
 class AnnoyIndex(NearestIndex):
     """Approximate nearest neighbours with Annoy; the built forest is saved beside the database."""
 

@@ -27,11 +27,13 @@ from rdd.checks import FLAG, whole
 from rdd.core.scoring import check_intervals, cosine_to_angular
 from rdd.index._cap_bounds import CELLS_FORMAT, Cells, fit_cells, load_cells, ranges, save_cells
 from rdd.index.base import NearestIndex
+from rdd.registry import register
 
 log = logging.getLogger(__name__)
 DENSE_ABOVE = 0.6  # share of surviving entries above which pruning does not pay: search them all
 
 
+@register("index", "exact")
 class ExactIndex(NearestIndex):
     """Exact nearest-neighbour search (no approximation), vectorised over candidate intervals."""
 

@@ -13,6 +13,7 @@ import numpy as np
 from rdd.checks import one_of, whole
 from rdd.core.scoring import cosine_to_angular
 from rdd.index.base import NearestIndex, interval_matrix
+from rdd.registry import register
 
 log = logging.getLogger(__name__)
 KINDS = ("flat", "ivf", "hnsw")
@@ -28,6 +29,7 @@ def _require_faiss():
     return faiss
 
 
+@register("index", "faiss")
 class FaissIndex(NearestIndex):
     """Nearest neighbours by maximum inner product on normalised vectors (= minimum angle)."""
 

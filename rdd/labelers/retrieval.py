@@ -17,9 +17,11 @@ from rdd.encoders.base import Encoder
 from rdd.encoders.embed import episode_frame_vectors
 from rdd.index import load_index
 from rdd.index.base import NearestIndex
+from rdd.registry import register
 from rdd.segments import Segment
 
 
+@register("labeler", "retrieval")
 class RetrievalLabeler:
     """Labels intervals with the instruction of the nearest entry of a :class:`SubtaskDatabase`."""
 

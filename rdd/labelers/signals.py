@@ -16,6 +16,7 @@ import numpy as np
 from rdd.checks import check_options, number
 from rdd.data.episode import Episode
 from rdd.data.hand_events import HandMove, arm_moving, episode_moves, smoothed_speed
+from rdd.registry import register
 from rdd.segments import Segment
 
 OPTION_RULES = {"hand_delta": number(0.0, exclusive_min=True), "moving_fraction": number(0.0, 1.0),
@@ -54,6 +55,7 @@ def _join(parts: list[str]) -> str:
     return parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
 
 
+@register("labeler", "signals")
 class SignalsLabeler:
     """Labels intervals from the episode's hand levels (or gripper flag) and joint velocities."""
 

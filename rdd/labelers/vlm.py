@@ -27,6 +27,7 @@ from rdd.labelers.vlm_backends import (
     resize_max_side,
     subsample_indices,
 )
+from rdd.registry import register
 from rdd.segments import Segment
 
 PROMPT = (
@@ -63,6 +64,7 @@ def instruction_from_answer(text: str, max_words: int) -> str:
     return line
 
 
+@register("labeler", "vlm")
 class VLMLabeler:
     """Names intervals with a VLM's one-line instruction for a few frames of each."""
 

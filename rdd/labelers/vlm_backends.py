@@ -24,6 +24,7 @@ import numpy as np
 
 from rdd.checks import check_options, number, whole
 from rdd.errors import InputError
+from rdd.registry import component, register
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +78,7 @@ class VLMBackend(Protocol):
         ...
 
 
+@register("vlm_backend", "openai")
 class OpenAIChatBackend:
     """An OpenAI-compatible chat-completions endpoint (``{base_url}/chat/completions``)."""
 
@@ -167,6 +169,7 @@ class OpenAIChatBackend:
         raise VLMError(f"VLM endpoint {self.url} failed after {self.retries + 1} attempts ({last})")
 
 
+@register("vlm_backend", "transformers")
 class TransformersVLMBackend:
     """A local transformers image-text-to-text checkpoint (e.g. a LLaVA or Qwen-VL folder)."""
 
@@ -212,17 +215,15 @@ class TransformersVLMBackend:
         return self.processor.decode(new_tokens, skip_special_tokens=True)
 
 
-BACKENDS = {"openai": OpenAIChatBackend, "transformers": TransformersVLMBackend}
-
-
 def check_backend_options(backend: str, own: Sequence[str] = (), **options: Any) -> type:
     """The backend class named ``backend``, after checking that it takes ``options`` and their ranges
     (``own``: the caller's own options, listed beside the backend's when one is unknown)."""
     import inspect
 
-    if backend not in BACKENDS:
-        raise InputError(f"unknown VLM backend {backend!r}; choose 'openai' or 'transformers'", option="backend")
-    cls = BACKENDS[backend]
+    try:
+        cls = component("vlm_backend", backend)
+    except ValueError as exc:
+        raise InputError(str(exc), option="backend") from None
     accepted = [n for n in inspect.signature(cls).parameters if n != "self"]
     unknown = sorted(set(options) - set(accepted))
     if unknown:

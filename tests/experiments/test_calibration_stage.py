@@ -67,7 +67,7 @@ def test_only_the_calibrated_decomposer_builds_the_calibration(tmp_path: Path):
         # an entry's begin vector is the whole-episode vector at its start frame
         i = base.episodes.index(name)
         np.testing.assert_allclose(vectors[base.starts[i]], base.begin[i], atol=1e-5)
-    assert calibrated["config"]["decomposer"]["use_calibration"] is True
+    assert calibrated["config"]["decomposer"]["_target_"] == "rdd.decomposers.rdd.RDDDecomposer.calibrated"
 
     again = _decompose("rdd_calibrated", cache, tmp_path / "again")
     assert again["timings"]["calibration"]["cached"]

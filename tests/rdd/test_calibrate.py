@@ -14,6 +14,7 @@ from rdd.core.calibrate import (
     default_grid,
     sample_episodes,
 )
+from rdd.database import DatabaseError
 from rdd.database.model import SubtaskDatabase
 from rdd.decomposers.rdd import RDDDecomposer
 from rdd.demo import SyntheticWorld, build_synthetic_database
@@ -61,13 +62,17 @@ def test_decomposer_uses_calibration_unless_overridden(db_with_frames):
     db = SubtaskDatabase.from_arrays(db_with_frames.begin, db_with_frames.end, db_with_frames.durations,
                                      meta={"calibration": {"chosen": {"alpha": 0.25, "min_len": 3,
                                                                       "max_len": 20}}})
-    dec = RDDDecomposer(db, use_calibration=True)
+    dec = RDDDecomposer.calibrated(db)
     assert (dec.alpha, dec.min_len, dec.max_len) == (0.25, 3, 20)
-    dec = RDDDecomposer(db, use_calibration=True, alpha=1.0, max_len=None)
+    assert dec.option_source == {"alpha": "calibration", "min_len": "calibration", "max_len": "calibration"}
+    dec = RDDDecomposer.calibrated(db, alpha=1.0, max_len=None)
     assert (dec.alpha, dec.min_len, dec.max_len) == (1.0, 3, None)
     assert dec.option_source == {"alpha": "given", "min_len": "calibration", "max_len": "given"}
     dec = RDDDecomposer(db)
     assert (dec.alpha, dec.min_len, dec.max_len) == (1.0, 2, None)
+    assert dec.option_source == {"alpha": "paper", "min_len": "paper", "max_len": "paper"}
+    with pytest.raises(DatabaseError, match="has no calibration"):
+        RDDDecomposer.calibrated(SubtaskDatabase.from_arrays(db.begin, db.end, db.durations))
 
 
 def test_bad_input(db_with_frames, caplog):

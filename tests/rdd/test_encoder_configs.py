@@ -1,6 +1,5 @@
 """conf/encoder/*.yaml: one per encoder module, options the builder accepts, instantiable by Hydra."""
 
-import importlib
 import inspect
 from pathlib import Path
 
@@ -23,11 +22,11 @@ def test_every_encoder_module_has_a_config_and_back():
 
 @pytest.mark.parametrize("name", available_encoders())
 def test_config_options_are_builder_arguments(name):
-    from rdd.registry import target
+    from rdd.registry import component, target
 
     cfg = _yaml(name)
-    assert cfg["_target_"] == target("encoder", name) == f"rdd.encoders.{name}.build"
-    params = inspect.signature(importlib.import_module(f"rdd.encoders.{name}").build).parameters
+    assert cfg["_target_"] == target("encoder", name)
+    params = inspect.signature(component("encoder", name)).parameters
     unknown = set(cfg) - {"_target_"} - set(params)
     assert not unknown, f"conf/encoder/{name}.yaml has options build() does not take: {unknown}"
 

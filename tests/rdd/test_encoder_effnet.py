@@ -48,11 +48,12 @@ def test_explicit_missing_checkpoint_names_file(tmp_path):
 
 def test_features_are_the_classifier_input(effnet):
     """The 1280-d features are what the package's own forward feeds its ImageNet classifier."""
-    import importlib
 
     import torch
 
-    preprocess = importlib.import_module(f"rdd.encoders.{effnet.name}").preprocess
+    from rdd.encoders._effnet_lite import VARIANTS, make_preprocess
+
+    preprocess = make_preprocess(VARIANTS[int(effnet.name[-1])].resolution)
     img = np.random.default_rng(1).integers(0, 256, size=(2, 100, 140, 3), dtype=np.uint8)
     with torch.inference_mode():
         expected = effnet.model(preprocess(img)).numpy()  # package forward: pool -> dropout -> fc

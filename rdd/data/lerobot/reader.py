@@ -32,6 +32,7 @@ from rdd.data.lerobot.layout import (
     infer_layout,
 )
 from rdd.data.lerobot.video import VideoFrames
+from rdd.registry import register
 
 log = logging.getLogger(__name__)
 IMAGE_PREFIX = "observation.images."
@@ -317,6 +318,7 @@ def episode_names(root: str | Path, episodes: Sequence[int] | None = None, skip_
     return [episode_name(e) for e in _wanted(LeRobotDataset(root), episodes, skip_missing)]
 
 
+@register("reader", "lerobot")
 def load_episodes(
     root: str | Path,
     episodes: Sequence[int] | None = None,
