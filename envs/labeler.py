@@ -3,7 +3,7 @@
 It reads only the interval's frames of the simulator's privileged record (object poses, held
 object, articulation states) plus the gripper and end-effector tracks, never the expert's
 segmentation or waypoints, so every decomposer's intervals are labelled by the same rules. It
-plays the part of the paper's Gemini/GPT-4 labeller.
+plays the part of the paper's Gemini/GPT-4 labeler.
 
 Vocabulary (the first rule that applies wins; X, Y are object labels such as "red block",
 "top drawer handle", "plate"; D an articulation label such as "top drawer"):

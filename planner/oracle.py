@@ -2,7 +2,7 @@
 
 For each evaluation episode the pipeline records the scripted expert on the same task and env seed,
 segments it with the keyframe rule the policy is trained on, and labels the segments with the
-training labeller (stage ``oracle_plans``). The oracle then hands those instructions out in order,
+training labeler (stage ``oracle_plans``). The oracle then hands those instructions out in order,
 one per planner query, whatever the camera shows; after the last one it repeats it. Success with it
 measures what the low-level policy can do when the planner makes no mistake.
 """

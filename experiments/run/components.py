@@ -161,7 +161,7 @@ def expert_segments(episode) -> list[Segment]:
 def expert_plan(env_cfg: DictConfig, task: str, seed: int, labeler) -> dict[str, Any]:
     """The scripted expert's run of (task, env seed), cut by the keyframe rule and labelled.
 
-    Recorded without images (the labeller reads the privileged record); the instructions are what
+    Recorded without images (the labeler reads the privileged record); the instructions are what
     the policy was trained on for the same segments, so they are the oracle planner's answers.
     """
     from envs.expert import run_expert

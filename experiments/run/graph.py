@@ -159,7 +159,7 @@ class Run:
 
     def expert_labels(self, task: str, split: str, count: int, first: int = 0,
                       wait: bool = True) -> tuple[list[Episode], str] | None:
-        """Episodes carrying expert segments and labeller instructions (copies), and a key over them
+        """Episodes carrying expert segments and labeler instructions (copies), and a key over them
         (``wait=False``: None at once while another job generates the demos)."""
         episodes = self.episodes(task, split, count, first, wait=wait)
         if episodes is None:
@@ -203,14 +203,14 @@ class Run:
                                           self.text_cache(), tmp), wait=wait)
 
     def labeler(self):
-        """The labeller of decomposed demonstrations, shared by every decomposer (built once)."""
+        """The labeler of decomposed demonstrations, shared by every decomposer (built once)."""
         if self._labeler is None:
             self._labeler = instantiate_component(self.cfg.labeler, "labeler",
                                                   self.runtime(self.cfg.labeler, "labeler"))
         return self._labeler
 
     def train_labeler(self):
-        """The labeller of the expert-segmented training set (built once)."""
+        """The labeler of the expert-segmented training set (built once)."""
         if self._train_labeler is None:
             self._train_labeler = instantiate_component(self.cfg.train_labeler, "train_labeler")
         return self._train_labeler

@@ -72,7 +72,7 @@ def base_planner_dir(run: Run) -> tuple[Path, str]:
     """The base planner pretrained on the pretraining tasks' expert demos (the w/o-finetune one)."""
     eps, data_key = run.labelled_set(
         run.pretrain_tasks, "train", int(run.cfg.data.pretrain_episodes_per_task))
-    # The tokenizer also covers the evaluation tasks' goals and labeller vocabulary (the paper's
+    # The tokenizer also covers the evaluation tasks' goals and labeler vocabulary (the paper's
     # planner is a pretrained VLM that already knows the words); no evaluation demo is trained on,
     # only their slot words (colours, drawers, shapes) join the finetune's slot swapping.
     vocab_eps, vocab_key = run.labelled_set(
@@ -99,7 +99,7 @@ def planner_stage(run: Run) -> tuple[Path, Path | None, str, dict[str, Any]]:
     rows, dec_key = decompositions(run, run.eval_tasks)
     info["decompositions"] = rows
     episodes = {e.name: e for t in run.eval_tasks for e in run.episodes(t, "val", *run.val_window())}
-    # the validation demos as the decomposer cut them and the labeller named the pieces
+    # the validation demos as the decomposer cut them and the labeler named the pieces
     eps = [with_segments(episodes[r["episode"]], r["segments"], r["instructions"]) for r in rows]
     spec = {"planner": run.node("planner"), "base": base_key, "decompositions": dec_key,
             "seed": int(run.cfg.seed)}

@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from rdd.cli.aliases import add_index_arg
 from rdd.errors import UsageError
 from rdd.progress import progress
 
@@ -68,7 +69,5 @@ def add_parser(sub) -> None:
                    "(default none and 1.25x, 2x the longest stored segment)")
     p.add_argument("--sample", type=int, default=10, help="episodes held out in turn (default 10)")
     p.add_argument("--seed", type=int, default=0)
-    # --backend: the flag's name before the index was called `index` everywhere; scripts use it
-    p.add_argument("--index", "--backend", dest="index", default="exact",
-                   help="retrieval index for calibration: exact, annoy or faiss")
+    add_index_arg(p, "retrieval index for calibration: exact, annoy or faiss")
     p.set_defaults(func=cmd_calibrate)

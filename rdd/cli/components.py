@@ -14,6 +14,7 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
+from rdd.cli.aliases import OPTION_ALIASES, OUTPUT_KEYS
 from rdd.cli.common import (
     make_cache,
     make_encoder,
@@ -44,9 +45,6 @@ SET_BY_CLI = (*RUNTIME_OBJECTS, "views")
 FLAG_DEFAULTS = ("stopping_delta", "velocity_source")
 # ...while these are unset unless typed, and when typed they win over --option.
 FLAG_OVERRIDES = ("alpha", "max_len")
-# --option names from before the retrieval index was called `index` everywhere (scripts pass
-# --option backend=annoy); they apply to a decomposer that takes the new name and not the old.
-OPTION_ALIASES = {"backend": "index", "backend_options": "index_options"}
 DEFAULT_ENCODER = "effnet_lite0"  # uvd's encoder without --encoder (rdd: the database's)
 
 
@@ -117,8 +115,7 @@ def build_decomposer(name: str, options: Mapping[str, Any], args: argparse.Names
         config.update(encoder=encoder.name, weights_id=encoder.weights_id, views=list(kwargs["views"]))
     if db is not None:
         config.update(db=str(args.db), db_fingerprint=db.fingerprint(), db_size=len(db))
-    # The output names the index "backend", as it has since its first version (readers know that key).
-    config.update({("backend" if k == "index" else k): v for k, v in decomposer.settings().items()})
+    config.update({OUTPUT_KEYS.get(k, k): v for k, v in decomposer.settings().items()})
     return decomposer, config
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from rdd.cli.aliases import add_index_arg
 from rdd.cli.common import check_output, write_json_atomic
 from rdd.cli.options import force_arg
 from rdd.errors import UsageError
@@ -28,8 +29,7 @@ def add_parser(sub) -> None:
     """The ``demo`` subcommand and its options."""
     p = sub.add_parser("demo", help="run the end-to-end demo")
     p.add_argument("--seed", type=int, default=0)
-    # --backend: the flag's name before the index was called `index` everywhere; scripts use it
-    p.add_argument("--index", "--backend", dest="index", default="exact", help="retrieval index: exact, annoy or faiss")
+    add_index_arg(p, "retrieval index: exact, annoy or faiss")
     p.add_argument("--json", help="also write the demo's summary here")
     force_arg(p)
     p.set_defaults(func=cmd_demo)

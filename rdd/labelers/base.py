@@ -1,10 +1,10 @@
-"""The labeller protocol: what turns an interval of an episode into a sub-task instruction.
+"""The labeler protocol: what turns an interval of an episode into a sub-task instruction.
 
 Implementations: ``rdd.labelers.retrieval.RetrievalLabeler`` (the nearest database entry's
 instruction), ``rdd.labelers.signals.SignalsLabeler`` (what the robot's hand and joint signals show),
 ``rdd.labelers.vlm.VLMLabeler`` (a vision-language model's instruction for a few frames) and, in the
 harness, ``envs.labeler.PrivilegedLabeler`` (from the simulator's record).
-One labeller serves every decomposer of a comparison, as the paper labels all methods' intervals
+One labeler serves every decomposer of a comparison, as the paper labels all methods' intervals
 with one model.
 """
 

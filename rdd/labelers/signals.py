@@ -3,7 +3,7 @@
 A segment is named by the hand state changes whose midpoint falls in it (``rdd.data.hand_events``:
 "right hand closes", "left hand opens"; "gripper" for a single unnamed one) and by the arms that
 move for at least half of its frames ("right arm moves", "both arms move"; "arm moves" when the
-joints have no side). A segment where nothing moves is "hold still". The default labeller of
+joints have no side). A segment where nothing moves is "hold still". The default labeler of
 ``python -m rdd decompose --write-lerobot`` when no other names the segments.
 """
 

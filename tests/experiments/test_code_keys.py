@@ -82,7 +82,7 @@ def test_every_stage_of_the_repository_has_a_key_and_components_join_it(tmp_path
 
     for stage in STAGE_BUILDERS:  # every builder named exists
         assert len(stage_code_key(stage)) == 16
-    # the demos never depend on the labeller; the labels stage does, through its _target_
+    # the demos never depend on the labeler; the labels stage does, through its _target_
     assert not any("labeler" in n for n, _ in closure(tuple(STAGE_BUILDERS["demos"])))
     spec = {"labeler": {"_target_": "envs.labeler.PrivilegedLabeler"}}
     assert target_modules(spec) == ["envs.labeler"]

@@ -70,7 +70,7 @@ def test_option_composes_and_instantiates(group: str, option: str, runtime):
     if group not in ("decomposer", "labeler"):
         assert takes == (), f"only decomposers and labelers get runtime objects, {group}={option} asks {takes}"
     if group == "policy":
-        # a training factory: the pipeline passes the episodes, labeller and folder at the call site
+        # a training factory: the pipeline passes the episodes, labeler and folder at the call site
         from experiments.config.instantiate import component_factory
 
         factory = component_factory(node, group)

@@ -37,7 +37,7 @@ def _run(overrides: list[str], cache: Path, out: Path) -> dict:
 
 
 def _expert_plan(task: str, seed: int) -> list[str]:
-    """The expert's labelled instructions, computed here from the simulator and labeller directly."""
+    """The expert's labelled instructions, computed here from the simulator and labeler directly."""
     from envs.expert import run_expert
     from envs.labeler import PrivilegedLabeler
     from rdd.decomposers.expert import ExpertDecomposer
