@@ -81,3 +81,30 @@ def evaluate_segmentation(
         "num_pred": float(len(pred)),
         "num_gt": float(len(gt)),
     }
+
+
+def auroc(scores: Sequence[float], positive: Sequence[bool]) -> float:
+    """Area under the ROC curve: the chance that a positive scores above a negative (ties half);
+    NaN without both kinds."""
+    s = [float(x) for x in scores]
+    pos = [x for x, p in zip(s, positive, strict=True) if p]
+    neg = [x for x, p in zip(s, positive, strict=True) if not p]
+    if not pos or not neg:
+        return float("nan")
+    wins = sum((a > b) + 0.5 * (a == b) for a in pos for b in neg)
+    return wins / (len(pos) * len(neg))
+
+
+def confidence_auroc(episodes: Sequence[tuple[Sequence[Segment], Sequence[float], Sequence[Segment]]],
+                     doubtful_below: float = 0.5) -> dict[str, float]:
+    """How well per-segment confidences separate the segments that match a ground-truth segment
+    (best IoU >= ``doubtful_below``) from those that match none: AUROC over every segment of
+    ``episodes`` (pred segments, their confidences, ground truth), and the counts."""
+    conf, good = [], []
+    for pred, confidence, gt in episodes:
+        p, g = _check(pred, "predicted"), _check(gt, "ground-truth")
+        if len(confidence) != len(p):
+            raise ValueError(f"{len(confidence)} confidences for {len(p)} segments")
+        conf += [float(c) for c in confidence]
+        good += [max(segment_iou(a, b) for b in g) >= doubtful_below for a in p]
+    return {"auroc": auroc(conf, good), "segments": float(len(good)), "doubtful": float(len(good) - sum(good))}

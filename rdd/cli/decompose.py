@@ -40,6 +40,8 @@ from rdd.data.episode import Episode
 from rdd.errors import InputError, UsageError
 
 OUTPUT_VERSION = 1
+# Chosen by measurement (docs/review.md): flags most episodes with a doubtful segment, few others.
+REVIEW_BELOW = 0.5
 FALLBACK_FIELDS = ("task", "episode", "index", "count", "start", "end")
 
 
@@ -89,7 +91,20 @@ def episode_record(episode: Episode, result) -> dict[str, Any]:
         "instructions": None if instructions is None else ["" if t is None else str(t) for t in instructions],
         "instruction_sources": None,
         "novelty": None if result.novelty is None else float(result.novelty),
+        **confidence_fields(result),
     }
+
+
+def confidence_fields(result) -> dict[str, Any]:
+    """``confidence`` and ``neighbours`` (the matched entry: episode, segment, label) per segment, for
+    a decomposer that gives them (rdd); none otherwise, so other outputs keep their bytes."""
+    if result.confidence is None:
+        return {}
+    return {"confidence": [round(float(c), 4) for c in result.confidence],
+            "neighbours": None if result.neighbours is None else [
+                {"entry": n["entry"], "episode": n["episode"], "segment": [n["start"], n["end"]],
+                 "label": n["instruction"] or None, "distance": round(float(n["distance"]), 6)}
+                for n in result.neighbours]}
 
 
 def fill_instructions(record: dict[str, Any], episode: Episode, labeler=None, fallback: str | None = None) -> None:
@@ -220,6 +235,8 @@ def cmd_decompose(args: argparse.Namespace) -> int:
     if args.write_lerobot is not None and args.format != "lerobot":
         raise UsageError(f"--write-lerobot needs --format lerobot, not {args.format}")
     workers = check_workers(args.workers, args)
+    if not 0.0 <= args.review_below <= 1.0:
+        raise UsageError(f"--review-below {args.review_below:g}: a confidence is in [0, 1]")
     inputs = [("--data", args.data), ("--db", args.db), ("--label-db", args.label_db), cache_input(args)]
     out = check_output(args.out, "--out", args.force, inputs=inputs)
     lerobot_out = check_output(args.write_lerobot, "--write-lerobot", False, kind="dir",
@@ -259,10 +276,21 @@ def cmd_decompose(args: argparse.Namespace) -> int:
     if out is not None:
         write_json_atomic(out, {"config": config, "episodes": records}, overwrite=args.force)
         print(f"wrote {out}: {len(records)} episodes decomposed with {args.decomposer}")
+    flagged = review_count(records, args.review_below)
+    if flagged is not None:
+        print(f"{flagged} of {len(records)} episodes have a segment of confidence below {args.review_below:g} "
+              "(--review-below)")
     staging.remove()
     if lerobot_out is not None:
         Staging(parts_folder(lerobot_out), "").remove()
     return 0
+
+
+def review_count(records: Sequence[dict[str, Any]], below: float) -> int | None:
+    """How many episodes have a segment whose confidence is below ``below`` (None: no confidences)."""
+    if not records or any(not isinstance(r.get("confidence"), list) for r in records):
+        return None
+    return sum(1 for r in records if r["confidence"] and min(r["confidence"]) < below)
 
 
 def add_parser(sub) -> None:
@@ -303,6 +331,8 @@ def add_parser(sub) -> None:
     p.add_argument("--fallback-instruction", metavar="TEMPLATE",
                    help="instruction for segments the decomposer gives none, with fields "
                         + ", ".join("{" + f + "}" for f in FALLBACK_FIELDS))
+    p.add_argument("--review-below", type=float, default=REVIEW_BELOW, metavar="C",
+                   help=f"count the episodes with a segment of confidence below C (rdd; default {REVIEW_BELOW:g})")
     force_arg(p)
     add_workers_arg(p)
     p.set_defaults(func=cmd_decompose)

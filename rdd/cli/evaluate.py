@@ -99,6 +99,23 @@ def pred_methods(items: Sequence[str], flag: str = "--pred") -> dict[str, dict[s
     return methods
 
 
+def confidence_line(label: str, pred: dict[str, dict[str, Any]], gt: dict[str, dict[str, Any]]
+                    ) -> tuple[str, dict[str, float]] | None:
+    """For a method whose every shared episode has per-segment ``confidence``: one line with the
+    AUROC of confidence against segments that match no ground-truth segment (best IoU < 0.5)."""
+    from rdd.metrics import confidence_auroc
+
+    shared = [name for name in gt if name in pred]
+    if not shared or any(not isinstance(pred[n].get("confidence"), list) for n in shared):
+        return None
+    try:
+        found = confidence_auroc([(pred[n]["segments"], pred[n]["confidence"], gt[n]["segments"]) for n in shared])
+    except ValueError as exc:
+        raise UsageError(f"--pred {label}: field 'confidence': {exc}") from exc
+    return (f"{label}: confidence AUROC {found['auroc']:.3f} over {found['segments']:.0f} segments, "
+            f"{found['doubtful']:.0f} of them with best IoU < 0.5 against --gt"), found
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """mIoU (paper and symmetric) and boundary P/R/F1 of each ``--pred`` method against ``--gt``."""
     from rdd.compare import compare_methods, format_table
@@ -116,6 +133,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                         m["left_out"])
     result.update(pred=list(args.pred), gt=str(args.gt))
     print(format_table(result))
+    for label, pred in methods.items():
+        line = confidence_line(label, pred, gt)
+        if line:
+            result["methods"][label]["confidence"] = line[1]
+            print(line[0])
     if out is not None:
         write_json_atomic(out, result, overwrite=args.force)
     return 0

@@ -107,41 +107,44 @@ def _points(grid: dict[str, list]) -> list[dict[str, Any]]:
     return pts
 
 
-def _held_out_scores(db: SubtaskDatabase, held: str, points: list[dict[str, Any]], index: str,
-                     index_options: Mapping[str, Any]) -> list[float]:
-    """mIoU of decomposing ``held`` with the rest of the database, for every grid point."""
-    fv = db.frames[held]
-    gt = db.episode_segments(held)
+def partitions(nearest, durations: np.ndarray, fv: np.ndarray, points: Sequence[Mapping[str, Any]]
+               ) -> list[list[tuple[int, int]] | None]:
+    """RDD's default-mode partition of frame vectors ``fv`` for every point {alpha, min_len, max_len}
+    (None where no partition fits its bounds); one retrieval with ``nearest`` (a fitted index over
+    entries of ``durations``) serves them all."""
     t = fv.shape[0]
-    keep = np.array([n != held for n in db.episodes])
-    nearest = load_index(index, **dict(index_options)).fit(db.begin[keep], db.end[keep])
-    durations = db.durations[keep]
     lo = min(p["min_len"] for p in points)
-    hi = max(t if p["max_len"] is None else min(p["max_len"], t) for p in points)
     if t < lo:
-        return [0.0] * len(points)
-    hi = max(hi, lo)
+        return [None] * len(points)
+    hi = max(lo, max(t if p["max_len"] is None else min(p["max_len"], t) for p in points))
     starts, ends, valid = candidate_intervals(t, lo, hi)
     s, e = starts[valid], ends[valid]
     ids, dist = nearest.search_intervals(fv, s, e)
-    qdur, ndur = scoring.durations(s, e), durations[ids]
-    length = scoring.length_term(qdur, ndur)
+    length = scoring.length_term(scoring.durations(s, e), durations[ids])
     weight = scoring.weights(s, e)
-    out = []
+    out: list[list[tuple[int, int]] | None] = []
     for p in points:
         mn, mx = p["min_len"], t if p["max_len"] is None else min(p["max_len"], t)
         if t < mn or mx < mn:
-            out.append(0.0)
+            out.append(None)
             continue
         dense = np.full(starts.shape, -np.inf)
         dense[valid] = -weight * (dist + p["alpha"] * length)
         try:
-            _, segs = max_sum_partition_dense(dense[:, mn - lo : mx - lo + 1], mn, mx)
-        except ValueError:  # no partition with these bounds: the worst score
-            out.append(0.0)
-            continue
-        out.append(miou(segs, gt))
+            out.append(max_sum_partition_dense(dense[:, mn - lo : mx - lo + 1], mn, mx)[1])
+        except ValueError:  # no partition with these bounds
+            out.append(None)
     return out
+
+
+def _held_out_scores(db: SubtaskDatabase, held: str, points: list[dict[str, Any]], index: str,
+                     index_options: Mapping[str, Any]) -> list[float]:
+    """mIoU of decomposing ``held`` with the rest of the database, for every grid point (0: none fits)."""
+    gt = db.episode_segments(held)
+    keep = np.array([n != held for n in db.episodes])
+    nearest = load_index(index, **dict(index_options)).fit(db.begin[keep], db.end[keep])
+    found = partitions(nearest, db.durations[keep], db.frames[held], points)
+    return [0.0 if segs is None else miou(segs, gt) for segs in found]
 
 
 def calibrate(

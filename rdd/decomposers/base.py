@@ -20,6 +20,7 @@ class Decomposition:
     neighbours: list[dict[str, Any]] | None = None  # per-segment matched database entry
     novelty: float | None = None  # RDD's Delta: mean interval score of the optimal partition
     meta: dict[str, Any] = field(default_factory=dict)
+    confidence: list[float] | None = None  # per segment, in [0, 1] (rdd.core.confidence)
 
     @property
     def keyframes(self) -> list[int]:

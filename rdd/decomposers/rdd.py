@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from rdd.checks import check_options, number, one_of, whole
-from rdd.core import scoring
+from rdd.core import confidence, scoring
 from rdd.core.solver import candidate_intervals, max_sum_partition_dense
 from rdd.data.episode import Episode
 from rdd.database.model import SubtaskDatabase
@@ -211,7 +211,7 @@ class RDDDecomposer(Decomposer):
             total, segments, pos = self._solve(j, starts, valid, self.min_len, max_len)
             delta = scoring.novelty(j[pos])
             if self.mode == "default":
-                return self._result(total, segments, pos, j, ids, dist, sim, delta, meta)
+                return self._result(total, segments, pos, j, ids, dist, sim, delta, meta, fv)
             meta["default_segments"] = [list(x) for x in segments]
             end_ids, end_dist = self.index.search_ends(fv)  # nearest end frame, per end frame
             ids, dist = end_ids[e - 1], end_dist[e - 1]
@@ -224,9 +224,9 @@ class RDDDecomposer(Decomposer):
         total, segments, pos = self._solve(j, starts, valid, self.min_len, max_len)
         if delta is None:
             delta = scoring.novelty(j[pos])
-        return self._result(total, segments, pos, j, ids, dist, sim, delta, meta)
+        return self._result(total, segments, pos, j, ids, dist, sim, delta, meta, fv)
 
-    def _result(self, total, segments, pos, j, ids, dist, sim, delta, meta) -> Decomposition:
+    def _result(self, total, segments, pos, j, ids, dist, sim, delta, meta, fv) -> Decomposition:
         neighbours = []
         for p in pos:
             entry = self.database.entry(int(ids[p]))
@@ -241,4 +241,6 @@ class RDDDecomposer(Decomposer):
             neighbours=neighbours,
             novelty=delta,
             meta=meta,
+            confidence=confidence.for_segments(self.database, self.index, fv, segments, [int(ids[p]) for p in pos],
+                                              self.min_len, self.max_len),
         )

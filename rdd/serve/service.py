@@ -155,6 +155,7 @@ class DecomposeService:
         answer: dict[str, Any] = {"segments": segment_lists(result.segments)}
         if method == "rdd":
             answer["nn_list"] = [self.nn_views(n) for n in result.neighbours or []]
+            answer["confidence"] = result.confidence  # per segment, in [0, 1] (rdd.core.confidence)
         return answer
 
     def nn_views(self, neighbour: dict[str, Any]) -> list[dict[str, Any]]:

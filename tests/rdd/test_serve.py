@@ -53,9 +53,11 @@ def test_rdd_segments_equal_decompose(setup, server, tmp_path):
     status, answer = bench.call(server.url + "/decompose", {"paths": setup["frames"], "method": "rdd",
                                                             "preprocessor": "pixels"})
     assert status == 200, answer
-    assert set(answer) == {"segments", "nn_list"}
+    assert set(answer) == {"segments", "nn_list", "confidence"}
     expected, record = cli_segments(setup, tmp_path, "rdd", "--db", str(setup["db"]))
     assert answer["segments"] == expected
+    # The server's confidence is decompose's, rounded as its JSON rounds it (issue 63).
+    assert [round(c, 4) for c in answer["confidence"]] == record["confidence"]
     # Official shape: per segment, one record per view, naming the entry matched (its instruction too).
     assert [[v["view"] for v in seg] for seg in answer["nn_list"]] == [["front", "wrist"]] * len(expected)
     assert [seg[0]["instruction"] for seg in answer["nn_list"]] == record["instructions"]
