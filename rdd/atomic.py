@@ -7,8 +7,10 @@ temporary sibling in the target folder, flushed to disk (``fsync``), and renamed
 crash or Ctrl-C leaves either the old file or the new one, never half of one, and two writers never
 share a temporary name. Files get the permissions an ordinary ``open()`` would give them under the
 process umask (``tempfile`` alone would leave them 0600). A failure names the target, never the
-hidden temporary (the user knows only the target), and :func:`check_writable` tells before any work
-whether a target can be written at all.
+hidden temporary (the user knows only the target), also when the disk is full (a write's own error
+names no file), and :func:`check_writable` tells before any work whether a target can be written at
+all. A process killed outright (SIGKILL, power loss) cannot remove its temporaries: whoever owns the
+target next finds them with :func:`leftovers` and removes them.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import contextlib
 import errno
 import json
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator
@@ -29,6 +32,8 @@ __all__ = [
     "atomic_file",
     "atomic_path",
     "check_writable",
+    "leftovers",
+    "remove_temporaries",
     "write_bytes_atomic",
     "write_json_atomic",
     "write_text_atomic",
@@ -37,6 +42,12 @@ __all__ = [
 
 class TargetExistsError(FileExistsError):
     """The target exists and the caller did not ask to replace it."""
+
+
+# Errors that mean the filesystem has no room (a quota counts): the write's own error names no file.
+FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+# mkstemp/mkdtemp's random part: 8 characters of this alphabet.
+_RANDOM = "[a-z0-9_]{8}"
 
 
 def _umask() -> int:
@@ -92,9 +103,14 @@ def _errors_name(path: Path, prefix: str) -> Iterator[None]:
         raise
     except OSError as exc:
         name = _target_of(exc.filename, path, prefix)
-        if name is None or exc.errno is None:
+        code = exc.errno
+        if code is None and "No space left on device" in str(exc):
+            code = errno.ENOSPC  # C libraries (Arrow) report a full disk in words
+        if name is None and exc.filename is None and code in FULL_ERRNOS:
+            name = str(path)  # a full disk fails a write(), whose error names no file
+        if name is None or code is None:
             raise
-        raise OSError(exc.errno, exc.strerror or str(exc), name) from exc
+        raise OSError(code, exc.strerror or os.strerror(code), name) from exc
 
 
 def _target_of(filename: Any, path: Path, prefix: str) -> str | None:
@@ -108,6 +124,39 @@ def _target_of(filename: Any, path: Path, prefix: str) -> str | None:
         if here.parent == parent and here.name.startswith(prefix) and here.name != path.name:
             return str(path / name.relative_to(here)) if here != name else str(path)
     return None
+
+
+def leftovers(path: str | os.PathLike) -> list[Path]:
+    """The temporaries of ``path`` beside it (of :func:`atomic_path`, :func:`atomic_dir`, and the old
+    folder that an overwrite moves aside) that a killed writer left; only the owner of ``path`` may
+    remove them (a live writer's temporary has the same form)."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        return []
+    file_prefix = _temp_prefix(path, path.stem, f".tmp{path.suffix}")
+    dir_prefix = _temp_prefix(path, path.name, ".tmp")
+    forms = re.compile(f"{re.escape(file_prefix)}{_RANDOM}{re.escape('.tmp' + path.suffix)}|"
+                       f"{re.escape(dir_prefix)}{_RANDOM}\\.(tmp|old)")
+    return sorted(p for p in path.parent.iterdir() if forms.fullmatch(p.name))
+
+
+def remove_temporaries(folder: str | os.PathLike) -> list[Path]:
+    """Remove every temporary of this module anywhere inside ``folder`` (a staging folder kept across
+    runs, which a killed run may have left them in); returns what was removed. Only for a folder
+    that one process owns: a live writer's temporary has the same form."""
+    form = re.compile(f"\\..*\\.{_RANDOM}\\.(tmp(\\.[^.]+)?|old)")
+    removed = []
+    for root, dirs, files in os.walk(folder):
+        for name in [*files, *dirs]:
+            if form.fullmatch(name):
+                target = Path(root) / name
+                if target.is_dir() and not target.is_symlink():
+                    shutil.rmtree(target, ignore_errors=True)
+                else:
+                    target.unlink(missing_ok=True)
+                removed.append(target)
+        dirs[:] = [d for d in dirs if not form.fullmatch(d)]
+    return removed
 
 
 def check_writable(path: str | os.PathLike) -> None:

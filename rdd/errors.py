@@ -7,7 +7,9 @@ at fault, so a command-line front end prints it as it is, without a traceback. I
 
 from __future__ import annotations
 
-__all__ = ["InputError", "UsageError"]
+import signal
+
+__all__ = ["InputError", "Terminated", "UsageError", "interrupt_on_sigterm"]
 
 
 class InputError(ValueError):
@@ -22,3 +24,17 @@ class InputError(ValueError):
 
 class UsageError(Exception):
     """A command was called wrongly (a flag, a combination of flags): printed as one line, exit status 2."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a scheduler, ``docker stop``, ``timeout``) raised where the process was, so every
+    ``finally`` runs and removes its temporaries, as Ctrl-C does."""
+
+
+def _raise_terminated(signum: int, _frame) -> None:
+    raise Terminated(signal.Signals(signum).name)
+
+
+def interrupt_on_sigterm() -> None:
+    """Turn SIGTERM into :class:`Terminated` in this process (its main thread)."""
+    signal.signal(signal.SIGTERM, _raise_terminated)

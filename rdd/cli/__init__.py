@@ -2,8 +2,10 @@
 
 Subcommands: ``build-db``, ``calibrate``, ``decompose``, ``evaluate``, ``plot``, ``demo``, ``serve``. Every expected failure
 is reported as one line naming the file or option at fault, with exit status 2 (``-v`` also prints
-the traceback); Ctrl-C stops with status 130 and leaves no partial output (``decompose`` and
-``build-db`` keep the episodes they finished beside it, so the same command resumes: ``rdd.batch.staging``).
+the traceback); Ctrl-C stops with status 130 and SIGTERM with 143, both leaving no partial output and
+no temporary copy (``decompose`` and ``build-db`` keep the episodes they finished beside it, so the same
+command resumes: ``rdd.batch.staging``). A full disk is one line naming the file and its role (output,
+database, staging, cache).
 Outputs are written atomically, never replace an existing file or folder without ``--force``, and never
 replace or go inside an input of the same command, ``--force`` or not.
 """
@@ -17,8 +19,10 @@ import sys
 import traceback
 from collections.abc import Sequence
 
+from rdd.atomic import FULL_ERRNOS
 from rdd.cli import build_db, calibrate, decompose, demo, evaluate, plot, serve
-from rdd.errors import UsageError
+from rdd.cli.common import full_disk
+from rdd.errors import Terminated, UsageError, interrupt_on_sigterm
 
 # One module per subcommand, each adding its own parser; the order is the order of ``--help``.
 SUBCOMMANDS = (build_db, calibrate, decompose, evaluate, plot, demo, serve)
@@ -40,19 +44,24 @@ def main(argv: Sequence[str] | None = None, prog: str = "rdd") -> int:
     args = build_parser(prog).parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    interrupt_on_sigterm()
     try:
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         resumes = " (the episodes it finished are kept: the same command resumes)" \
             if args.command in ("decompose", "build-db") else ""
-        print(f"\ninterrupted ({args.command}): stopped; no partial output was written{resumes}", file=sys.stderr)
-        return 130
+        how = "terminated" if isinstance(exc, Terminated) else "interrupted"
+        by = " by SIGTERM" if isinstance(exc, Terminated) else ""
+        print(f"\n{how} ({args.command}): stopped{by}; no partial output was written{resumes}", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
     except UsageError as exc:
         return _report(args, str(exc), "error")
     except (FileNotFoundError, KeyError, ValueError, ImportError, RuntimeError, OSError,
             pickle.UnpicklingError) as exc:
         # Library errors already name the file/field at fault; show them without a traceback.
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        if isinstance(exc, OSError) and exc.errno in FULL_ERRNOS:
+            msg = full_disk(args, exc)
         return _report(args, str(msg), f"error ({args.command})")
 
 

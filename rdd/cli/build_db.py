@@ -13,6 +13,7 @@ import numpy as np
 from rdd.atomic import atomic_file
 from rdd.batch.staging import (
     Staging,
+    claim,
     parts_folder,
     run_staged,
     settings_hash,
@@ -75,12 +76,18 @@ def _staged_entries(path: Path, episode: Episode) -> Entries:
 
 def cmd_build_db(args: argparse.Namespace) -> int:
     """Segment episodes (their sub-task annotations or the expert rule), build and calibrate the database."""
+    workers = check_workers(args.workers, args)
+    out = check_output(args.out, "--out", args.force, kind="dir", inputs=[("--data", args.data), cache_input(args)])
+    with claim(out, "--out"):
+        return _build(args, out, workers)
+
+
+def _build(args: argparse.Namespace, out: Path, workers: int) -> int:
+    """The work of :func:`cmd_build_db`, with ``out`` held by this run."""
     from rdd.core.calibrate import CalibrationError, calibrate, sample_episodes, summary
     from rdd.database.build import merge_entries
     from rdd.database.model import SubtaskDatabase
 
-    workers = check_workers(args.workers, args)
-    out = check_output(args.out, "--out", args.force, kind="dir", inputs=[("--data", args.data), cache_input(args)])
     episodes = load_data(args)
     views = resolve_views(args.views, episodes[0])
     encoder = make_encoder(args.encoder, parse_options(args.encoder_option, "--encoder-option"))
@@ -131,12 +138,11 @@ def cmd_build_db(args: argparse.Namespace) -> int:
         payload = ([tuple(int(v) for v in seg) for seg in segmentations[i]],
                    None if instructions is None else list(instructions[i]), ep.name in keep)
         items.append((staging.path(i, ep, payload), ep, payload))
-    run_staged(items, _embed_one, f"embedding ({encoder.name})", workers=workers,
-               state=(encoder, views, make_cache(args), not args.raw_views),
-               factory=_embedder, factory_args=(args, views),
-               executor=args.executor, address=args.ray_address)
-    db = SubtaskDatabase.from_entries(merge_entries([_staged_entries(p, ep) for p, ep, _ in items]),
-                                      encoder, views, normalize_views=not args.raw_views)
+    parts = run_staged(items, _embed_one, f"embedding ({encoder.name})", workers=workers,
+                       state=(encoder, views, make_cache(args), not args.raw_views),
+                       factory=_embedder, factory_args=(args, views),
+                       executor=args.executor, address=args.ray_address, read=_staged_entries)
+    db = SubtaskDatabase.from_entries(merge_entries(parts), encoder, views, normalize_views=not args.raw_views)
     db.meta["source"] = {"format": args.format, "data": str(args.data),
                          "episodes": names, "segmenter": source}
     if keep:

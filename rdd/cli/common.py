@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -111,6 +112,35 @@ def cache_input(args: argparse.Namespace) -> tuple[str, Path | None]:
 def write_json_atomic(path: str | Path, data: Any, overwrite: bool = True) -> Path:
     """Write ``data`` as compact JSON to ``path`` atomically (``rdd.atomic``)."""
     return _write_json(path, data, overwrite=overwrite, dumps=dumps_compact)
+
+
+def full_disk(args: argparse.Namespace, exc: OSError) -> str:
+    """The one line for a full disk or quota: the file that could not be written and its role."""
+    from rdd.batch.staging import parts_folder
+    from rdd.encoders.cache import default_cache_dir
+
+    path = Path(os.path.abspath(exc.filename)) if exc.filename else None
+    roles: list[tuple[Path | None, str, str]] = []
+    for flag in ("out", "write_lerobot"):
+        target = getattr(args, flag, None)
+        if target is None:
+            continue
+        shown = "--" + flag.replace("_", "-")
+        roles.append((parts_folder(Path(target)), f"staging: the resumable parts of {shown} {target}",
+                      f"free space beside {shown}"))
+        kind = "the database" if args.command == "build-db" else "the output"
+        roles.append((Path(target), f"{kind} {shown}", f"free space there or give another {shown}"))
+    if getattr(args, "db", None):
+        roles.append((Path(args.db), f"the database --db {args.db}", "free space there"))
+    cache = getattr(args, "cache_dir", None)
+    roles.append(((Path(cache) if cache else default_cache_dir()).parent, "the cache",
+                  "free space there, or give another --cache-dir or --no-cache"))
+    for root, role, fix in roles:
+        root = Path(os.path.abspath(root))
+        if path is not None and (path == root or root in path.parents):
+            return f"no space left on device: cannot write {path} ({role}); {fix}"
+    where = f"cannot write {path}" if path is not None else "a write failed"
+    return f"no space left on device: {where}; free space there and run again"
 
 
 def load_data(args: argparse.Namespace) -> list[Episode]:

@@ -12,6 +12,7 @@ from typing import Any
 from rdd.atomic import write_text_atomic
 from rdd.batch.staging import (
     Staging,
+    claim,
     digest,
     parts_folder,
     run_staged,
@@ -249,6 +250,12 @@ def cmd_decompose(args: argparse.Namespace) -> int:
         if LeRobotDataset(args.data).version == "v3.0":
             raise UsageError(f"--lerobot-version 2.1: --data {args.data} is a v3.0 dataset; its copy is written as "
                            "v3.0 (drop the option)")
+    with claim(out, "--out"), claim(lerobot_out, "--write-lerobot"):
+        return _decompose(args, out, lerobot_out, workers)
+
+
+def _decompose(args: argparse.Namespace, out: Path | None, lerobot_out: Path | None, workers: int) -> int:
+    """The work of :func:`cmd_decompose`, with its outputs held by this run."""
     episodes = load_data(args)
     decomposer, config = make_decomposer(args, episodes[0])
     labeler = make_labeler(args)
@@ -259,10 +266,9 @@ def cmd_decompose(args: argparse.Namespace) -> int:
     staging = Staging(parts_folder(out if out is not None else lerobot_out),
                       settings_hash(args, config=config, label_db=label_db and label_db.fingerprint()))
     items = [(staging.path(i, ep), ep, None) for i, ep in enumerate(episodes)]
-    run_staged(items, _decompose_one, f"decompose ({args.decomposer})", workers=workers,
-               state=(decomposer, labeler, args), factory=_components, factory_args=(args, episodes[0]),
-               executor=args.executor, address=args.ray_address)
-    records = [_staged_record(path, ep) for path, ep, _ in items]
+    records = run_staged(items, _decompose_one, f"decompose ({args.decomposer})", workers=workers,
+                         state=(decomposer, labeler, args), factory=_components, factory_args=(args, episodes[0]),
+                         executor=args.executor, address=args.ray_address, read=_staged_record)
     if lerobot_out is not None:
         from rdd.data.lerobot.write import write_subtasks
 

@@ -33,7 +33,13 @@ from typing import Any
 
 import numpy as np
 
-from rdd.atomic import TargetExistsError, atomic_dir, atomic_path, write_text_atomic
+from rdd.atomic import (
+    TargetExistsError,
+    atomic_dir,
+    atomic_path,
+    remove_temporaries,
+    write_text_atomic,
+)
 from rdd.data.lerobot.convert import convert_to_v30, link_or_copy
 from rdd.data.lerobot.dataset import LeRobotDataset, column, need
 from rdd.data.lerobot.language import LANGUAGE_EVENTS, LANGUAGE_PERSISTENT
@@ -175,6 +181,7 @@ def _resumable_dir(staging: Path, out: Path) -> Iterator[Path]:
     if out.exists():
         raise TargetExistsError(f"{out} already exists (refusing to replace it)")
     staging.mkdir(parents=True, exist_ok=True)
+    remove_temporaries(staging)  # a killed run's half-written files: never published with the copy
     yield staging
     if out.exists():
         raise TargetExistsError(f"{out} already exists (refusing to replace it)")
@@ -223,7 +230,10 @@ def write_subtasks(
         if out.exists():
             raise TargetExistsError(f"{out} already exists (refusing to replace it)")
         out.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.name}.v30-") as tmp:
+        # In the staging folder when there is one: what a killed run leaves goes with it.
+        beside = Path(staging).parent if staging is not None else out.parent
+        beside.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=beside, prefix=f".{out.name}.v30-") as tmp:
             converted = convert_to_v30(ds, Path(tmp) / "dataset", link=link)
             return write_subtasks(converted, out, subtasks, link=link, staging=staging)
     unknown = sorted(set(subtasks) - set(ds.episodes))
