@@ -102,12 +102,14 @@ def _errors_name(path: Path, prefix: str) -> Iterator[None]:
     except TargetExistsError:
         raise
     except OSError as exc:
-        name = _target_of(exc.filename, path, prefix)
+        name = _target_of(exc.filename, path, prefix) or _target_of(exc.filename2, path, prefix)
         code = exc.errno
         if code is None and "No space left on device" in str(exc):
             code = errno.ENOSPC  # C libraries (Arrow) report a full disk in words
-        if name is None and exc.filename is None and code in FULL_ERRNOS:
-            name = str(path)  # a full disk fails a write(), whose error names no file
+        if name is None and code in FULL_ERRNOS:
+            # The file without room is the one written here: a write()'s error names no file, a
+            # copy's names its source first.
+            name = str(path)
         if name is None or code is None:
             raise
         raise OSError(code, exc.strerror or os.strerror(code), name) from exc

@@ -28,7 +28,7 @@ from typing import Any
 
 from experiments.cache.code_keys import stage_code_key
 from experiments.cache.locks import HEARTBEAT_S, STALE_AFTER_S, FileLock
-from rdd.atomic import TargetExistsError, atomic_dir, check_writable, write_json_atomic
+from rdd.atomic import TargetExistsError, atomic_dir, check_writable, leftovers, write_json_atomic
 
 __all__ = ["StageCache", "StageTiming", "canonical", "read_json", "spec_key"]
 
@@ -225,11 +225,9 @@ def _clear_leftovers(final: Path) -> None:
     parent = final.parent
     if not parent.is_dir():
         return
-    key = final.name
-    for p in parent.iterdir():
-        # atomic_dir's temporaries (".<key>.*.tmp"/".old") and the older ".tmp-<key>-..." folders.
-        if p.is_dir() and (p.name.startswith(f".{key}.") and p.suffix in (".tmp", ".old")
-                           or p.name.startswith(f".tmp-{key}-")):
+    # atomic_dir's temporaries of the entry, and the older ".tmp-<key>-..." folders.
+    for p in [*leftovers(final), *parent.glob(f".tmp-{final.name}-*")]:
+        if p.is_dir():
             shutil.rmtree(p, ignore_errors=True)
     if final.exists() and not (final / SPEC_FILE).is_file():
         shutil.rmtree(final)

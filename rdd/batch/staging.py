@@ -112,6 +112,7 @@ def claim(out: Path | None, flag: str) -> Iterator[None]:
     finally:
         with contextlib.suppress(OSError):  # gone with the staging folder once the output is written
             (folder / OWNER).unlink()
+        with contextlib.suppress(OSError):
             folder.rmdir()  # only when empty: no part was staged
         os.close(fd)
 

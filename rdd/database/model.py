@@ -19,8 +19,7 @@ from rdd.database.build import Entries, segment_entries
 from rdd.database.store import (
     PER_ENTRY,
     DatabaseError,
-    read_files,
-    read_frames,
+    read_database,
     record_calibration,
     write_files,
 )
@@ -307,7 +306,7 @@ class SubtaskDatabase:
     ) -> SubtaskDatabase:
         """Read a saved database, verifying checksums, dimensions and (when given) encoder and views."""
         root = Path(directory)
-        manifest, begin, end, durations, entries = read_files(root)
+        manifest, begin, end, durations, entries, frames = read_database(root)
         d = manifest["frame_dim"]
         meta = {
             "encoder": manifest["encoder"], "weights_id": manifest["weights_id"],
@@ -317,9 +316,7 @@ class SubtaskDatabase:
             **{k: entries[k] for k in PER_ENTRY},
         }
         db = cls.from_arrays(begin, end, durations, entries["labels"], meta)
-        frame_names = manifest.get("frames_episodes") or []
-        if frame_names:
-            db.frames = read_frames(root, frame_names, d)
+        db.frames = frames
         db.check_compatible(encoder, views, where=f"database {root}")
         if encoder is not None and encoder.dim and manifest["views"]:
             expected_dim = encoder.dim * len(manifest["views"])

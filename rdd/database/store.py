@@ -18,15 +18,18 @@ checked): failing them would throw away every database built so far for a check 
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import logging
+import os
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rdd.atomic import write_json_atomic
+from rdd.atomic import leftovers, write_json_atomic
 from rdd.data.frames import update_with_file
 from rdd.errors import InputError
 
@@ -126,16 +129,68 @@ def record_calibration(directory: Path, calibration: dict[str, Any]) -> Path:
     return mpath
 
 
-def read_files(root: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-    """Manifest, begin, end, durations and entries of the database in ``root``, checksums and shapes
-    verified (DatabaseError otherwise)."""
-    if not root.is_dir():
-        raise DatabaseError(f"database directory {root} does not exist")
+class _Snapshot:
+    """The files of one database directory as one consistent set: opened relative to the directory
+    itself (its inode), so a concurrent ``build-db --force``, which renames a whole new directory into
+    place and deletes the old one, can never mix files of two builds; each file is read once into
+    memory, and those bytes are what is verified and used."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        self.fd = os.open(root, os.O_RDONLY | os.O_DIRECTORY)
+
+    def read(self, name: str) -> bytes:
+        fd = os.open(name, os.O_RDONLY, dir_fd=self.fd)
+        with os.fdopen(fd, "rb") as fh:
+            return fh.read()
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+class _Replaced(Exception):
+    """A file vanished while the directory was read: it was replaced and the old one deleted."""
+
+
+# A load that finds its directory replaced under it starts again on the new one, this many times.
+_TRIES = 5
+
+
+def read_database(root: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.ndarray, dict[str, Any],
+                                      dict[str, np.ndarray]]:
+    """Manifest, begin, end, durations, entries and kept frames (name -> (T, d)) of the database in
+    ``root``, all from one version of it, checksums verified on the bytes used (DatabaseError otherwise)."""
+    for attempt in range(_TRIES):
+        try:
+            snapshot = _Snapshot(root)
+        except FileNotFoundError:
+            if attempt + 1 < _TRIES and _being_replaced(root):
+                time.sleep(0.05)  # between the old directory's move and the new one's arrival
+                continue
+            raise DatabaseError(f"database directory {root} does not exist") from None
+        except NotADirectoryError:
+            raise DatabaseError(f"database directory {root} is a file, not a directory") from None
+        try:
+            return _read_snapshot(snapshot)
+        except _Replaced:
+            continue
+        finally:
+            snapshot.close()
+    raise DatabaseError(f"database {root} was replaced {_TRIES} times while it was read (another run is "
+                        "rebuilding it); load it again once that run is done")
+
+
+def _being_replaced(root: Path) -> bool:
+    """Whether a directory replace of ``root`` is under way (its temporaries are beside it)."""
+    return bool(leftovers(root))
+
+
+def _read_snapshot(snap: _Snapshot):
+    root = snap.root
     mpath = root / MANIFEST
-    if not mpath.is_file():
-        raise DatabaseError(f"{mpath} is missing (not a saved database, or an interrupted save)")
+    raw = _read(snap, MANIFEST, f"{mpath} is missing (not a saved database, or an interrupted save)")
     try:
-        manifest = json.loads(mpath.read_text())
+        manifest = json.loads(raw)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DatabaseError(f"{mpath} is not valid JSON: {exc}") from exc
     if not isinstance(manifest, dict):
@@ -147,18 +202,16 @@ def read_files(root: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.n
         if key not in manifest:
             raise DatabaseError(f"{mpath}: field {key!r} is missing")
     frame_names = manifest.get("frames_episodes") or []
+    data: dict[str, bytes] = {}
     for name in (*_ARRAYS, _ENTRIES, *([_FRAMES] if frame_names else [])):
-        path = root / name
-        if not path.is_file():
-            raise DatabaseError(f"database file {path} is missing")
+        data[name] = _read(snap, name, f"database file {root / name} is missing")
         expected = manifest["checksums"].get(name)
         if expected is None:
             raise DatabaseError(f"{mpath}: no checksum recorded for {name}")
-        if _sha256(path) != expected:
-            raise DatabaseError(f"database file {path} is corrupt (sha256 does not match the manifest)")
-    begin = np.load(root / "begin.npy", allow_pickle=False)
-    end = np.load(root / "end.npy", allow_pickle=False)
-    durations = np.load(root / "durations.npy", allow_pickle=False)
+        if hashlib.sha256(data[name]).hexdigest() != expected:
+            raise DatabaseError(f"database file {root / name} is corrupt (sha256 does not match the manifest); "
+                                "rebuild the database")
+    begin, end, durations = (np.load(io.BytesIO(data[name]), allow_pickle=False) for name in _ARRAYS)
     n, d = manifest["count"], manifest["frame_dim"]
     for name, arr in (("begin.npy", begin), ("end.npy", end)):
         if arr.shape != (n, d):
@@ -174,14 +227,30 @@ def read_files(root: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.n
         log.warning("%s: format_version %s, written before manifest fields were checksummed: its views and "
                     "encoder fields are trusted as they are (rebuild the database to have them checked)",
                     mpath, UNSEALED_VERSION)
-    entries = json.loads((root / _ENTRIES).read_text())
-    return manifest, begin, end, durations, entries
+    entries = json.loads(data[_ENTRIES])
+    frames = _frames(root, data[_FRAMES], frame_names, d) if frame_names else {}
+    return manifest, begin, end, durations, entries, frames
 
 
-def read_frames(root: Path, frame_names: list[str], d: int) -> dict[str, np.ndarray]:
-    """The kept frame vectors (name -> (T, d)) of the database in ``root``."""
-    with np.load(root / _FRAMES, allow_pickle=False) as data:
-        frames = {n: np.asarray(data[f"f{i}"], dtype=np.float32) for i, n in enumerate(frame_names)}
+def _read(snap: _Snapshot, name: str, missing: str) -> bytes:
+    """The bytes of ``name`` in the snapshot; a file gone since the manifest was read means the
+    directory was replaced meanwhile (_Replaced), one never there is a DatabaseError."""
+    try:
+        return snap.read(name)
+    except FileNotFoundError:
+        try:
+            replaced = os.stat(snap.root).st_ino != os.fstat(snap.fd).st_ino
+        except FileNotFoundError:
+            replaced = True
+        if replaced:  # the old directory is being deleted under us: read the new one
+            raise _Replaced from None
+        raise DatabaseError(missing) from None
+
+
+def _frames(root: Path, data: bytes, frame_names: list[str], d: int) -> dict[str, np.ndarray]:
+    """The kept frame vectors (name -> (T, d)) in the bytes of ``frames.npz``."""
+    with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+        frames = {n: np.asarray(npz[f"f{i}"], dtype=np.float32) for i, n in enumerate(frame_names)}
     for n, fv in frames.items():
         if fv.ndim != 2 or fv.shape[1] != d:
             raise DatabaseError(f"{root / _FRAMES}: frames of {n!r} have shape {fv.shape}, "

@@ -5,7 +5,9 @@ batch axis. Its file is cached under ``$RDD_CACHE_DIR/onnx`` (``~/.cache/rdd/onn
 hash of everything that determines the graph: the weights' hash, the source files of the model's
 modules and forward, the input shape and the torch, onnx and opset versions. A fresh export is
 checked against fp32 torch on the first real batch before it is used or written, so a cached file
-is always one that reproduced torch's features (cosine >= ``MIN_COSINE`` per frame).
+is always one that reproduced torch's features (cosine >= ``MIN_COSINE`` per frame). Its sha256 is
+written beside it (``.onnx.sha256``) and checked on the bytes that the session is made from, so a
+damaged file is exported again, with a warning, and never used.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 INSTALL = "pip install onnxruntime onnx"
-EXPORT_FORMAT = 1  # bump when the export or its key changes meaning
+EXPORT_FORMAT = 2  # bump when the export or its key changes meaning (2: a .sha256 file beside each export)
 OPSET = 17
 INPUT, OUTPUT = "images", "features"
 MIN_COSINE = 0.999  # per frame, to fp32 torch; measured: 1 - 1e-7 for the Lite models
@@ -192,7 +194,7 @@ class OnnxRunner:
         session = None
         if path.is_file():
             try:
-                session = open_session(path, self.threads, self.providers)
+                session = open_session(_verified(path), self.threads, self.providers)
             except Exception as exc:  # noqa: BLE001 - a damaged file is exported again
                 log.warning("ONNX file %s is unreadable (%s); exporting again", path, str(exc).splitlines()[0])
         if session is None:
@@ -222,6 +224,7 @@ class OnnxRunner:
         self.exports += 1
         try:
             write_bytes_atomic(path, data)
+            write_bytes_atomic(_sum_path(path), hashlib.sha256(data).hexdigest().encode())
         except OSError as exc:  # still usable in this process; the next one exports again
             log.warning("could not cache the ONNX export of %s at %s: %s", self.encoder.name, path, exc)
         return session
@@ -230,6 +233,22 @@ class OnnxRunner:
         """Features (N, D) of the preprocessed batch ``x`` (N, C, H, W)."""
         out = self._session(x).run([OUTPUT], {INPUT: x.contiguous().float().cpu().numpy()})[0]
         return out.reshape(out.shape[0], -1).astype(np.float32, copy=False)
+
+
+def _sum_path(path: Path) -> Path:
+    return path.with_name(path.name + ".sha256")
+
+
+def _verified(path: Path) -> bytes:
+    """The bytes of the export at ``path``, read once, if they match the sha256 written beside them."""
+    data = path.read_bytes()
+    try:
+        stored = _sum_path(path).read_text().strip()
+    except OSError as exc:
+        raise ValueError(f"its checksum file {_sum_path(path)} cannot be read: {exc.strerror}") from exc
+    if hashlib.sha256(data).hexdigest() != stored:
+        raise ValueError("its sha256 does not match the one written with it (damaged)")
+    return data
 
 
 def _model_device(model: torch.nn.Module):

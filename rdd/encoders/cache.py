@@ -1,7 +1,8 @@
 """On-disk embedding cache: one file per (episode content, view, encoder, weights, preprocessing).
 
 Entries are ``.npz`` files holding the embeddings and a SHA-256 of their bytes; a file that fails to
-load, fails its checksum or has the wrong shape is treated as a miss, recomputed and rewritten.
+load, fails its checksum or has the wrong shape is treated as a miss, recomputed and rewritten; an
+entry that cannot be written (a full disk) is skipped with a warning and the run goes on.
 Writes go through :func:`rdd.atomic.atomic_file` (a temporary file in the same folder, renamed into
 place, with the umask's permissions), so a reader never sees a half-written entry, and two
 processes filling the same entry cannot corrupt it.
@@ -44,6 +45,7 @@ class CacheStats:
     hits: int = 0
     misses: int = 0
     corrupt: int = 0
+    unwritten: int = 0  # entries that could not be stored (the run went on without them)
 
 
 class EmbeddingCache:
@@ -131,11 +133,19 @@ class EmbeddingCache:
         return emb
 
     def _write(self, path: Path, emb: np.ndarray, fields: dict) -> None:
-        """Atomically store ``emb`` with its checksum and key fields at ``path`` (``rdd.atomic``)."""
-        with atomic_file(path, "wb") as fh:
-            np.savez(
-                fh,
-                embeddings=emb,
-                checksum=np.array(self._checksum(emb)),
-                key=np.array(json.dumps(fields, sort_keys=True)),
-            )
+        """Atomically store ``emb`` with its checksum and key fields at ``path`` (``rdd.atomic``); a
+        cache that cannot be written (a full disk, a quota, no permission) is skipped with a warning."""
+        try:
+            with atomic_file(path, "wb") as fh:
+                np.savez(
+                    fh,
+                    embeddings=emb,
+                    checksum=np.array(self._checksum(emb)),
+                    key=np.array(json.dumps(fields, sort_keys=True)),
+                )
+        except OSError as exc:
+            self.stats.unwritten += 1
+            # once per cache: the cause is the same for every entry after the first
+            log.log(logging.WARNING if self.stats.unwritten == 1 else logging.DEBUG,
+                    "embedding cache: cannot write %s (%s); going on without caching it", exc.filename or path,
+                    exc.strerror or exc)

@@ -117,6 +117,22 @@ def test_a_damaged_cached_export_is_made_again(pair, cache_root, caplog):
     assert path.stat().st_size == len(good)
 
 
+def test_a_garbled_cached_export_is_never_used(pair, cache_root, caplog):
+    """A cached export whose bytes changed but which still loads (a weight garbled) gave embeddings
+    off by up to 0.76 without a word (issue 62): its sha256 now fails, it is exported again."""
+    (path,) = sorted((cache_root / "onnx").glob("effnet_lite0-*.onnx"))
+    good = path.read_bytes()
+    raw = bytearray(good)
+    raw[len(raw) // 2: len(raw) // 2 + 64] = bytes(64)  # inside the weights: the graph still loads
+    path.write_bytes(bytes(raw))
+    enc = load_encoder("effnet_lite0", runtime="onnx", num_threads=1)
+    with caplog.at_level("WARNING"):
+        out = enc.encode(frames(2))
+    assert f"ONNX file {path} is unreadable (its sha256 does not match" in caplog.text and enc._runner.exports == 1
+    assert per_frame_cosine(out, pair[1].encode(frames(2))).min() >= 0.999
+    assert path.stat().st_size == len(good)
+
+
 def test_forced_torch_never_exports(cache_root, monkeypatch):
     monkeypatch.setattr(_onnx, "export_bytes", boom)
     monkeypatch.setenv("RDD_CACHE_DIR", str(cache_root / "elsewhere"))
