@@ -55,7 +55,7 @@ CLUSTER_LAUNCHERS = {"slurm": "hydra_plugins.hydra_submitit_launcher",
 
 def check_launcher(argv: list[str]) -> None:
     """Exit with the install line when ``hydra/launcher=...`` names a launcher whose extra is missing."""
-    from hydra_plugins.rdd_ray_launcher.ray_launcher import INSTALL_LINE
+    from hydra_plugins.rdd_ray_launcher import INSTALL_LINE
 
     for arg in argv:
         name = arg.partition("hydra/launcher=")[2] if arg.lstrip("+").startswith("hydra/launcher=") else ""

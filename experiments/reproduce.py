@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from experiments.run.job import hardware, machine_kind
+from experiments.report.table_format import machine_kind
+from experiments.run.job import hardware
 from rdd.atomic import write_json_atomic, write_text_atomic
 
 log = logging.getLogger("experiments.reproduce")

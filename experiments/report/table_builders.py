@@ -9,8 +9,7 @@ import numpy as np
 
 from experiments.report.results import RunRecord
 from experiments.report.stats import episode_outcomes, paired_difference
-from experiments.report.table_format import Table, mean_std, plus_minus
-from experiments.run.job import machine_kind
+from experiments.report.table_format import Table, machine_kind, mean_std, plus_minus
 
 
 def average_ranks(scores: Sequence[float]) -> list[float]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -69,3 +70,11 @@ def plus_minus(mean: float, std: float, scale: float = 100.0, digits: int = 1) -
     if math.isnan(std):  # a single value: no ± to show
         return f"{mean * scale:.{digits}f}"
     return f"{mean * scale:.{digits}f} ± {std * scale:.{digits}f}"
+
+
+def machine_kind(hw: dict[str, Any] | None) -> str | None:
+    """``<CPU model> (<vector width>)`` from a run's ``hardware`` record (``experiments.run.job.hardware``); None where it names no CPU."""
+    if not hw or not hw.get("cpu_model"):
+        return None
+    return f"{hw['cpu_model']} ({hw.get('torch_cpu_capability') or '?'})"
+

@@ -83,10 +83,3 @@ def cpu_model() -> str:
     except OSError:
         pass
     return platform.processor() or platform.machine()
-
-
-def machine_kind(hw: dict[str, Any] | None) -> str | None:
-    """``<CPU model> (<vector width>)`` from a :func:`hardware` record; None where it names no CPU."""
-    if not hw or not hw.get("cpu_model"):
-        return None
-    return f"{hw['cpu_model']} ({hw.get('torch_cpu_capability') or '?'})"

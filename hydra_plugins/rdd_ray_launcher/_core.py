@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.singleton import Singleton
@@ -13,7 +13,11 @@ from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from hydra_plugins.rdd_ray_launcher.ray_launcher import INSTALL_LINE, RayLauncher
+from hydra_plugins.rdd_ray_launcher import INSTALL_LINE
+
+if TYPE_CHECKING:
+    from hydra_plugins.rdd_ray_launcher.ray_launcher import RayLauncher
+
 
 log = logging.getLogger(__name__)
 

@@ -16,8 +16,6 @@ from hydra.plugins.launcher import Launcher
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig
 
-INSTALL_LINE = "pip install -c constraints.txt -e '.[cluster]'  (or: make install-cluster)"
-
 
 class RayLauncher(Launcher):
     """Launch sweep jobs as Ray tasks: ``ray.init(**init)`` once, ``ray.remote(**remote)`` per job."""

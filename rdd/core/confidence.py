@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rdd import geometry
 from rdd.core import scoring
 from rdd.core.calibrate import DEFAULT_ALPHAS, partitions
 from rdd.database.model import SubtaskDatabase
@@ -83,7 +84,7 @@ def reference(db: SubtaskDatabase, sample: int = REFERENCE_SAMPLE, seed: int = 0
         same = episodes[part][:, None] == episodes[None, :] if several else np.eye(n, dtype=bool)[part]
         cos[same] = -np.inf
         nearest = np.argmax(cos, axis=1)
-        dist = scoring.cosine_to_angular(cos[np.arange(part.size), nearest])
+        dist = geometry.cosine_to_angular(cos[np.arange(part.size), nearest])
         costs.append(match_cost(dist, db.durations[part], db.durations[nearest]))
     return ConfidenceReference(np.sort(np.concatenate(costs)))
 
@@ -97,8 +98,8 @@ def match_scores(ref: ConfidenceReference, db: SubtaskDatabase, frame_vectors: n
     s = np.array([int(a) for a, _ in segments])
     e = np.array([int(b) for _, b in segments])
     ids = np.asarray(entries, dtype=np.int64)
-    query = scoring.interval_vectors(frame_vectors, s, e)
-    dist = scoring.angular_distance(query, np.concatenate([db.begin[ids], db.end[ids]], axis=1))
+    query = geometry.interval_vectors(frame_vectors, s, e)
+    dist = geometry.angular_distance(query, np.concatenate([db.begin[ids], db.end[ids]], axis=1))
     return ref.confidence(match_cost(dist, scoring.durations(s, e), db.durations[ids]))
 
 

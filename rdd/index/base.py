@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from rdd.checks import CheckedOptions
-from rdd.core.scoring import check_intervals, cosine_to_angular
+from rdd.geometry import check_intervals, cosine_to_angular
 
 
 def _as_pair(begin: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from rdd.checks import FLAG, whole
-from rdd.core.scoring import check_intervals, cosine_to_angular
+from rdd.geometry import check_intervals, cosine_to_angular
 from rdd.index._cap_bounds import CELLS_FORMAT, Cells, fit_cells, load_cells, ranges, save_cells
 from rdd.index.base import NearestIndex
 from rdd.registry import register

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from rdd.checks import one_of, whole
-from rdd.core.scoring import cosine_to_angular
+from rdd.geometry import cosine_to_angular
 from rdd.index.base import NearestIndex, interval_matrix
 from rdd.registry import register
 

@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
+from rdd import geometry
 from rdd.cli import main
 from rdd.core import confidence as conf
-from rdd.core import scoring
 from rdd.database.model import SubtaskDatabase
 from rdd.decomposers.rdd import RDDDecomposer
 from rdd.demo import SyntheticWorld, build_synthetic_database
@@ -33,7 +33,7 @@ def test_reference_matches_each_entry_to_its_nearest_entry_of_another_episode():
     for i in range(6):  # brute force, one pair at a time
         others = [j for j in range(6) if episodes[j] != episodes[i]]
         vi = np.concatenate([begin[i], end[i]])
-        d = {j: float(scoring.angular_distance(vi, np.concatenate([begin[j], end[j]]))) for j in others}
+        d = {j: float(geometry.angular_distance(vi, np.concatenate([begin[j], end[j]]))) for j in others}
         j = min(d, key=d.get)
         want.append(d[j] + abs(np.log(durations[i] / durations[j])))
     np.testing.assert_allclose(conf.reference(db).costs, sorted(want), rtol=1e-5)

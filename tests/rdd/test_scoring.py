@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rdd import geometry
 from rdd.core import scoring
 from rdd.core.milestones import uvd_previous_milestone
 from rdd.core.solver import max_sum_partition
@@ -12,7 +13,7 @@ from rdd.core.solver import max_sum_partition
 
 def test_interval_vectors_layout():
     fv = np.arange(20, dtype=np.float32).reshape(10, 2)
-    v = scoring.interval_vectors(fv, [0, 3], [4, 10])
+    v = geometry.interval_vectors(fv, [0, 3], [4, 10])
     np.testing.assert_array_equal(v, [[0, 1, 6, 7], [6, 7, 18, 19]])
 
 
@@ -21,11 +22,11 @@ def test_angular_distance_is_chord_of_unit_vectors():
     a, b = rng.normal(size=(50, 7)), rng.normal(size=(50, 7)) * 3
     chord = np.linalg.norm(a / np.linalg.norm(a, axis=1, keepdims=True)
                            - b / np.linalg.norm(b, axis=1, keepdims=True), axis=1)
-    np.testing.assert_allclose(scoring.angular_distance(a, b), chord, atol=1e-9)
-    assert scoring.angular_distance(a[0], a[0]) == pytest.approx(0.0, abs=1e-6)
-    assert scoring.angular_distance(a[0], -a[0]) == pytest.approx(2.0)
+    np.testing.assert_allclose(geometry.angular_distance(a, b), chord, atol=1e-9)
+    assert geometry.angular_distance(a[0], a[0]) == pytest.approx(0.0, abs=1e-6)
+    assert geometry.angular_distance(a[0], -a[0]) == pytest.approx(2.0)
     with pytest.raises(ValueError, match="zero vector"):
-        scoring.angular_distance(np.zeros(3), np.ones(3))
+        geometry.angular_distance(np.zeros(3), np.ones(3))
 
 
 def test_default_similarity_by_hand():
@@ -91,10 +92,10 @@ def test_novelty_is_mean_score():
 def test_bad_intervals():
     fv = np.ones((5, 2))
     with pytest.raises(ValueError, match="outside"):
-        scoring.interval_vectors(fv, [0], [6])
+        geometry.interval_vectors(fv, [0], [6])
     with pytest.raises(ValueError, match="empty"):
-        scoring.interval_vectors(fv, [2], [2])
+        geometry.interval_vectors(fv, [2], [2])
     with pytest.raises(ValueError, match="integer"):
-        scoring.interval_vectors(fv, [0.5], [2])
+        geometry.interval_vectors(fv, [0.5], [2])
     with pytest.raises(ValueError, match="differ in length"):
-        scoring.interval_vectors(fv, [0, 1], [2])
+        geometry.interval_vectors(fv, [0, 1], [2])
