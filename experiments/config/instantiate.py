@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from omegaconf import DictConfig
@@ -65,17 +66,39 @@ def component_factory(node: DictConfig, group: str, fn: Any = None) -> functools
     return partial
 
 
-def instantiate_component(node: DictConfig, group: str, runtime: Mapping[str, Any] | None = None,
+@dataclass(frozen=True)
+class Resolved:
+    """A component node resolved and checked once: its ``_target_`` and the runtime objects it takes."""
+
+    node: DictConfig
+    group: str
+    target: Any
+    runtime: tuple[str, ...]
+
+
+def resolve(node: DictConfig, group: str) -> Resolved:
+    """Resolve ``node``'s target once, check its options and its runtime-object keys."""
+    if isinstance(node, Resolved):
+        return node
+    fn = target_callable(node, group)
+    check_component_node(group, node, fn)
+    return Resolved(node, group, fn, runtime_names(node, group, fn))
+
+
+def instantiate_component(node: DictConfig | Resolved, group: str, runtime: Mapping[str, Any] | None = None,
                           **kwargs: Any) -> Any:
-    """Build the component of ``node`` with exactly the runtime objects it takes, and ``kwargs``.
+    """Build the component of ``node`` (a config node, or one :func:`resolve` made) with exactly the
+    runtime objects it takes, and ``kwargs``.
 
     ``runtime`` must hold every runtime object the target takes (:func:`runtime_names`) and no
     other; ``kwargs`` are the call site's own arguments (they override config values).
     """
+    from hydra.utils import instantiate
+
+    component = resolve(node, group)
     runtime = dict(runtime or {})
-    fn = target_callable(node, group)  # resolved once; every check below reads it
-    runtime_names(node, group, fn)  # a runtime object set in the config fails here, naming the key
-    check_call(node, group, [*runtime, *kwargs], fn)
+    check_call(component.node, group, [*runtime, *kwargs], component.target)
     # A partial from the config, called with the runtime objects: they never pass through
     # OmegaConf (which would copy or reject them).
-    return registry.construct(component_factory(node, group, fn), runtime, f"{group} ({node._target_})", **kwargs)
+    partial = instantiate(component.node, _partial_=True)
+    return registry.construct(partial, runtime, f"{group} ({component.node._target_})", **kwargs)

@@ -17,8 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from experiments.cache.code_keys import code_key, stage_code_key, target_modules
 from experiments.cache.store import StageCache, read_json, spec_key
-from experiments.config.instantiate import instantiate_component, runtime_names
-from experiments.config.validate import target_callable
+from experiments.config.instantiate import Resolved, instantiate_component, resolve
 from experiments.run import components as comp
 from rdd.atomic import write_json_atomic
 from rdd.data.episode import Episode
@@ -68,7 +67,7 @@ class Run:
         self._labeler = None
         self._train_labeler = None
         self._learned_planner = None
-        self.planner_target = target_callable(cfg.planner, "planner")  # resolved once per run
+        self._resolved: dict[str, Resolved] = {}
         self.env_info = comp.env_info(cfg.env)
         self.eval_tasks = self._eval_tasks()
         self.pretrain_tasks = self._pretrain_tasks()
@@ -106,7 +105,7 @@ class Run:
         """The visual encoder (loaded once; missing weights fail here, before any long work)."""
         if self._encoder is None:
             try:
-                self._encoder = instantiate_component(self.cfg.encoder, "encoder")
+                self._encoder = instantiate_component(self.component("encoder"), "encoder")
             except (FileNotFoundError, ImportError, OSError) as exc:
                 name = str(self.cfg.encoder.get("_target_", "?")).removesuffix(".build").rsplit(".", 1)[-1]
                 raise Unavailable(f"encoder {name!r}: {exc}") from exc
@@ -205,14 +204,13 @@ class Run:
     def labeler(self):
         """The labeler of decomposed demonstrations, shared by every decomposer (built once)."""
         if self._labeler is None:
-            self._labeler = instantiate_component(self.cfg.labeler, "labeler",
-                                                  self.runtime(self.cfg.labeler, "labeler"))
+            self._labeler = instantiate_component(self.component("labeler"), "labeler", self.runtime("labeler"))
         return self._labeler
 
     def train_labeler(self):
         """The labeler of the expert-segmented training set (built once)."""
         if self._train_labeler is None:
-            self._train_labeler = instantiate_component(self.cfg.train_labeler, "train_labeler")
+            self._train_labeler = instantiate_component(self.component("train_labeler"), "train_labeler")
         return self._train_labeler
 
     def text_cache(self) -> Path:
@@ -273,21 +271,27 @@ class Run:
         node = self.cfg.get("decomposer")
         if node is None or not node.get("_target_"):
             return False
-        return bool(getattr(target_callable(node, "decomposer"), "uses_calibration", False))
+        return bool(getattr(self.component("decomposer").target, "uses_calibration", False))
 
-    def runtime(self, node: DictConfig, group: str) -> dict[str, Any]:
-        """The runtime objects the component of ``node`` takes, each under its one name."""
+    def component(self, group: str) -> Resolved:
+        """The component node of ``group``, resolved and checked once per run."""
+        if group not in self._resolved:
+            self._resolved[group] = resolve(self.cfg[group], group)
+        return self._resolved[group]
+
+    def runtime(self, group: str) -> dict[str, Any]:
+        """The runtime objects the component of ``group`` takes, each under its one name."""
         build = {"database": self.database, "encoder": self.encoder, "cache": self.embedding_cache}
-        return {name: build[name]() for name in runtime_names(node, group)}
+        return {name: build[name]() for name in self.component(group).runtime}
 
     def planner_learned(self) -> bool:
         """Whether the planner is a trained model (base + LoRA stages) rather than the oracle."""
-        return bool(getattr(self.planner_target, "learned", True))
+        return bool(getattr(self.component("planner").target, "learned", True))
 
     def learned_planner(self):
         """The learned planner of the config (its settings and training steps), built once per run."""
         if self._learned_planner is None:
-            self._learned_planner = instantiate_component(self.cfg.planner, "planner")
+            self._learned_planner = instantiate_component(self.component("planner"), "planner")
         return self._learned_planner
 
     def decomposes(self) -> bool:
@@ -300,7 +304,7 @@ class Run:
         parts: dict[str, Any] = {group: self.node(group)}
         if node is None or not node.get("_target_"):
             return parts
-        takes = runtime_names(node, group)
+        takes = self.component(group).runtime
         if "encoder" in takes or "database" in takes:
             parts["encoder"] = self.encoder_key()
         if "database" in takes:

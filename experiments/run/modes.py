@@ -47,10 +47,10 @@ def hierarchical(run: Run, results: dict[str, Any]) -> None:
         results["oracle"] = {"expert_success": {
             t: float(np.mean([r["expert_success"] for r in plan_rows if r["task"] == t]))
             for t in run.eval_tasks}}
-        view = str(getattr(run.planner_target, "view", "front"))
+        view = str(getattr(run.component("planner").target, "view", "front"))
 
         def make_planner() -> Any:
-            return instantiate_component(run.cfg.planner, "planner", plans=plans)
+            return instantiate_component(run.component("planner"), "planner", plans=plans)
     policy_dir, policy_key = policy or run.policy_stage()
     loaded: dict[str, Any] = {}
 

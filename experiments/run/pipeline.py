@@ -15,7 +15,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from experiments.cache.store import StageCache
-from experiments.config.instantiate import check_call, runtime_names
+from experiments.config.instantiate import check_call
 from experiments.config.validate import validate_config
 from experiments.report.result_blocks import main_metric, tracker_metrics
 from experiments.report.results import RESULTS_FILE, RESULTS_FORMAT, method_label
@@ -34,9 +34,10 @@ def preflight(run: Run) -> None:
         return
     takes: set[str] = set()
     for group in ("decomposer", "labeler"):
-        node = run.cfg[group]
-        names = runtime_names(node, group)
-        check_call(node, group, names)  # a parameter nothing fills fails now, not after the demos
+        component = run.component(group)
+        names = component.runtime
+        # A parameter nothing fills fails now, not after the demos.
+        check_call(component.node, group, names, component.target)
         takes |= set(names)
     if takes & {"encoder", "database"}:
         run.encoder()  # a missing checkpoint fails here, at once

@@ -44,8 +44,7 @@ def _task_decompositions(run: Run, task: str, parts: dict[str, Any], wait: bool)
     spec = {"demos": expert_key, **parts}
 
     def build(tmp: Path) -> None:
-        decomposer = instantiate_component(run.cfg.decomposer, "decomposer",
-                                           run.runtime(run.cfg.decomposer, "decomposer"))
+        decomposer = instantiate_component(run.component("decomposer"), "decomposer", run.runtime("decomposer"))
         labeler = run.labeler()
         out = []
         for ep in progress(episodes, desc=f"decompose {task}", unit="demo"):
