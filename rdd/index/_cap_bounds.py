@@ -16,6 +16,8 @@ float32 dot-product rounding keeps the result equal to a dense float32 search.
 
 from __future__ import annotations
 
+import hashlib
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -213,30 +215,48 @@ def ranges(starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
     return np.arange(total, dtype=np.int64) + shift
 
 
-CELLS_FORMAT = 1  # bump when fit_cells changes what it computes: saved cells of older code are not read
+# Bump when fit_cells changes what it computes or the file's form: saved cells of older code are not read.
+# 2: the file holds the sha256 of its arrays, checked on every read.
+CELLS_FORMAT = 2
+
+
+def _cells_checksum(arrays: dict[str, np.ndarray]) -> str:
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        arr = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}{arr.dtype.str}{arr.shape}".encode())
+        h.update(arr.tobytes())
+    return h.hexdigest()
 
 
 def save_cells(path: Path, cells: Cells) -> None:
-    """Write ``cells`` to ``path`` (.npz) atomically."""
+    """Write ``cells`` to ``path`` (.npz) atomically, with the sha256 of its arrays."""
     from rdd.atomic import atomic_file
 
     arrays = {f"{side}_{f}": getattr(getattr(cells, side), f) for side in ("begin", "end") for f in CAPS_FIELDS}
     arrays.update({f: getattr(cells, f) for f in CELLS_FIELDS})
     with atomic_file(path, "wb") as fh:
-        np.savez(fh, **arrays)
+        np.savez(fh, checksum=np.array(_cells_checksum(arrays)), **arrays)
 
 
 def load_cells(path: Path, num_entries: int) -> Cells:
-    """Cells saved by :func:`save_cells`, checked against the database size."""
+    """Cells saved by :func:`save_cells`, their checksum and size verified on the bytes read (ValueError)."""
     try:
-        with np.load(path) as z:
-            caps = {side: Caps(**{f: z[f"{side}_{f}"] for f in CAPS_FIELDS}) for side in ("begin", "end")}
-            cells = Cells(caps["begin"], caps["end"], **{f: z[f] for f in CELLS_FIELDS})
-    except (OSError, KeyError, ValueError) as exc:
-        raise ValueError(f"exact index cells file {path} is unreadable ({exc}); delete it to rebuild") from exc
+        with np.load(io.BytesIO(path.read_bytes()), allow_pickle=False) as z:
+            arrays = {name: z[name] for name in z.files if name != "checksum"}
+            stored = str(z["checksum"])
+    except Exception as exc:  # noqa: BLE001 - truncated, not a zip, a member missing: all unreadable
+        raise ValueError(f"exact index cells file {path} is unreadable ({type(exc).__name__}: {exc})") from exc
+    if _cells_checksum(arrays) != stored:
+        raise ValueError(f"exact index cells file {path} fails its checksum")
+    try:
+        caps = {side: Caps(**{f: arrays[f"{side}_{f}"] for f in CAPS_FIELDS}) for side in ("begin", "end")}
+        cells = Cells(caps["begin"], caps["end"], **{f: arrays[f] for f in CELLS_FIELDS})
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"exact index cells file {path} lacks {exc}") from exc
     if cells.perm.shape != (num_entries,) or cells.start[-1] != num_entries:
         raise ValueError(f"exact index cells file {path} holds {cells.perm.size} entries, the database "
-                         f"{num_entries}; delete it to rebuild")
+                         f"{num_entries}")
     return cells
 
 

@@ -80,7 +80,10 @@ class ExactIndex(NearestIndex):
         path = cache_dir / (f"exact-cells-v{CELLS_FORMAT}-n{n}-d{d}-c{self.cluster_size}-s{self.seed}-"
                             f"{key[:16]}.npz")
         if path.is_file():
-            return load_cells(path, n)
+            try:
+                return load_cells(path, n)
+            except ValueError as exc:  # a cache: damage costs a clustering, never a wrong search
+                log.warning("%s; clustering again and rewriting it", exc)
         cells = fit_cells(b, e, self.cluster_size, self.seed)
         try:
             save_cells(path, cells)
