@@ -99,12 +99,15 @@ def confidence_auroc(episodes: Sequence[tuple[Sequence[Segment], Sequence[float]
                      doubtful_below: float = 0.5) -> dict[str, float]:
     """How well per-segment confidences separate the segments that match a ground-truth segment
     (best IoU >= ``doubtful_below``) from those that match none: AUROC over every segment of
-    ``episodes`` (pred segments, their confidences, ground truth), and the counts."""
+    ``episodes`` (pred segments, their confidences, ground truth) with a confidence (a person's
+    segment, after review, has None), and the counts."""
     conf, good = [], []
     for pred, confidence, gt in episodes:
         p, g = _check(pred, "predicted"), _check(gt, "ground-truth")
         if len(confidence) != len(p):
             raise ValueError(f"{len(confidence)} confidences for {len(p)} segments")
-        conf += [float(c) for c in confidence]
-        good += [max(segment_iou(a, b) for b in g) >= doubtful_below for a in p]
+        for a, c in zip(p, confidence, strict=True):
+            if c is not None:
+                conf.append(float(c))
+                good.append(max(segment_iou(a, b) for b in g) >= doubtful_below)
     return {"auroc": auroc(conf, good), "segments": float(len(good)), "doubtful": float(len(good) - sum(good))}

@@ -1,6 +1,6 @@
 """``python -m rdd``: build a sub-task database, decompose demonstrations, evaluate, plot.
 
-Subcommands: ``build-db``, ``calibrate``, ``decompose``, ``evaluate``, ``plot``, ``demo``, ``serve``. Every expected failure
+Subcommands: ``build-db``, ``calibrate``, ``decompose``, ``evaluate``, ``plot``, ``demo``, ``serve``, ``review``. Every expected failure
 is reported as one line naming the file or option at fault, with exit status 2 (``-v`` also prints
 the traceback); Ctrl-C stops with status 130 and SIGTERM with 143, both leaving no partial output and
 no temporary copy (``decompose`` and ``build-db`` keep the episodes they finished beside it, so the same
@@ -20,12 +20,12 @@ import traceback
 from collections.abc import Sequence
 
 from rdd.atomic import FULL_ERRNOS
-from rdd.cli import build_db, calibrate, decompose, demo, evaluate, plot, serve
+from rdd.cli import build_db, calibrate, decompose, demo, evaluate, plot, review, serve
 from rdd.cli.common import full_disk
 from rdd.errors import Terminated, UsageError, interrupt_on_sigterm
 
 # One module per subcommand, each adding its own parser; the order is the order of ``--help``.
-SUBCOMMANDS = (build_db, calibrate, decompose, evaluate, plot, demo, serve)
+SUBCOMMANDS = (build_db, calibrate, decompose, evaluate, plot, demo, serve, review)
 
 
 def build_parser(prog: str = "rdd") -> argparse.ArgumentParser:

@@ -285,7 +285,7 @@ def _decompose(args: argparse.Namespace, out: Path | None, lerobot_out: Path | N
     flagged = review_count(records, args.review_below)
     if flagged is not None:
         print(f"{flagged} of {len(records)} episodes have a segment of confidence below {args.review_below:g} "
-              "(--review-below)")
+              "(--review-below; python -m rdd review shows them)")
     staging.remove()
     if lerobot_out is not None:
         Staging(parts_folder(lerobot_out), "").remove()

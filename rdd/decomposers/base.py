@@ -21,6 +21,7 @@ class Decomposition:
     novelty: float | None = None  # RDD's Delta: mean interval score of the optimal partition
     meta: dict[str, Any] = field(default_factory=dict)
     confidence: list[float] | None = None  # per segment, in [0, 1] (rdd.core.confidence)
+    instructions: list[str] | None = None  # per segment, when the decomposer names them itself
 
     @property
     def keyframes(self) -> list[int]:
