@@ -9,7 +9,8 @@ share a temporary name. Files get the permissions an ordinary ``open()`` would g
 process umask (``tempfile`` alone would leave them 0600). A failure names the target, never the
 hidden temporary (the user knows only the target), also when the disk is full (a write's own error
 names no file), and :func:`check_writable` tells before any work whether a target can be written at
-all. A process killed outright (SIGKILL, power loss) cannot remove its temporaries: whoever owns the
+all. A cache file that a C library writes or maps by name gets its sha256 beside it
+(:func:`write_sha256`), and :func:`read_verified` gives its bytes only when they match. A process killed outright (SIGKILL, power loss) cannot remove its temporaries: whoever owns the
 target next finds them with :func:`leftovers` and removes them.
 """
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import json
 import os
 import re
@@ -33,7 +35,9 @@ __all__ = [
     "atomic_path",
     "check_writable",
     "leftovers",
+    "read_verified",
     "remove_temporaries",
+    "write_sha256",
     "write_bytes_atomic",
     "write_json_atomic",
     "write_text_atomic",
@@ -301,3 +305,28 @@ def atomic_dir(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[
         finally:
             if tmp.exists():
                 shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _sha256_path(path: Path) -> Path:
+    return path.with_name(path.name + ".sha256")
+
+
+def write_sha256(path: str | os.PathLike) -> Path:
+    """Write the sha256 of ``path``'s bytes beside it (``<name>.sha256``, atomically); returns that file."""
+    path = Path(path)
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    return write_text_atomic(_sha256_path(path), digest + "\n")
+
+
+def read_verified(path: str | os.PathLike) -> bytes:
+    """The bytes of ``path``, read once, when they match the sha256 beside it (:func:`write_sha256`);
+    a ValueError saying what is wrong otherwise (the caller names the file and what it does next)."""
+    path = Path(path)
+    data = path.read_bytes()
+    try:
+        stored = _sha256_path(path).read_text().strip()
+    except OSError as exc:
+        raise ValueError(f"its checksum file {_sha256_path(path)} cannot be read: {exc.strerror}") from exc
+    if hashlib.sha256(data).hexdigest() != stored:
+        raise ValueError("its sha256 does not match the one written with it (damaged)")
+    return data

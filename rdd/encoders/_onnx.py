@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rdd.atomic import write_bytes_atomic
+from rdd.atomic import read_verified, write_bytes_atomic, write_sha256
 
 if TYPE_CHECKING:
     import torch
@@ -194,7 +194,7 @@ class OnnxRunner:
         session = None
         if path.is_file():
             try:
-                session = open_session(_verified(path), self.threads, self.providers)
+                session = open_session(read_verified(path), self.threads, self.providers)
             except Exception as exc:  # noqa: BLE001 - a damaged file is exported again
                 log.warning("ONNX file %s is unreadable (%s); exporting again", path, str(exc).splitlines()[0])
         if session is None:
@@ -224,7 +224,7 @@ class OnnxRunner:
         self.exports += 1
         try:
             write_bytes_atomic(path, data)
-            write_bytes_atomic(_sum_path(path), hashlib.sha256(data).hexdigest().encode())
+            write_sha256(path)
         except OSError as exc:  # still usable in this process; the next one exports again
             log.warning("could not cache the ONNX export of %s at %s: %s", self.encoder.name, path, exc)
         return session
@@ -233,22 +233,6 @@ class OnnxRunner:
         """Features (N, D) of the preprocessed batch ``x`` (N, C, H, W)."""
         out = self._session(x).run([OUTPUT], {INPUT: x.contiguous().float().cpu().numpy()})[0]
         return out.reshape(out.shape[0], -1).astype(np.float32, copy=False)
-
-
-def _sum_path(path: Path) -> Path:
-    return path.with_name(path.name + ".sha256")
-
-
-def _verified(path: Path) -> bytes:
-    """The bytes of the export at ``path``, read once, if they match the sha256 written beside them."""
-    data = path.read_bytes()
-    try:
-        stored = _sum_path(path).read_text().strip()
-    except OSError as exc:
-        raise ValueError(f"its checksum file {_sum_path(path)} cannot be read: {exc.strerror}") from exc
-    if hashlib.sha256(data).hexdigest() != stored:
-        raise ValueError("its sha256 does not match the one written with it (damaged)")
-    return data
 
 
 def _model_device(model: torch.nn.Module):

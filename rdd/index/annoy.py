@@ -7,15 +7,18 @@ query inspects ``n_trees * N`` nodes (all trees). Queries run one at a time (Ann
 from __future__ import annotations
 
 import hashlib
+import logging
 from pathlib import Path
 
 import numpy as np
 
-from rdd.atomic import atomic_path
+from rdd.atomic import atomic_path, read_verified, write_sha256
 from rdd.checks import whole
 from rdd.errors import InputError
 from rdd.index.base import NearestIndex, interval_matrix
 from rdd.registry import register
+
+log = logging.getLogger(__name__)
 
 
 def _require_annoy():
@@ -57,26 +60,44 @@ class AnnoyIndex(NearestIndex):
         dim = x.shape[1]
         if key is None:
             key = hashlib.sha256(np.ascontiguousarray(x).tobytes()).hexdigest()
-        # The file name holds everything that made the forest, so a stale file is never reused.
-        fname = f"annoy-d{dim}-n{x.shape[0]}-t{self.n_trees}-s{self.seed}-{key[:16]}.ann"
-        index = annoy_index(dim, "angular")
-        if cache_dir is not None and (cache_dir / fname).is_file():
-            if not index.load(str(cache_dir / fname)) or index.get_n_items() != x.shape[0]:
-                raise ValueError(f"annoy index file {cache_dir / fname} is unreadable or has the wrong size")
-            self._index, self.path = index, cache_dir / fname
-            return
+        # The file name holds everything that made the forest, so a stale file is never reused
+        # (v2: a .sha256 file beside it, checked before the forest is mapped).
+        fname = f"annoy-v2-d{dim}-n{x.shape[0]}-t{self.n_trees}-s{self.seed}-{key[:16]}.ann"
+        path = cache_dir / fname if cache_dir is not None else None
+        if path is not None and path.is_file():
+            index = annoy_index(dim, "angular")
+            try:
+                read_verified(path)
+                if not index.load(str(path)) or index.get_n_items() != x.shape[0]:
+                    raise ValueError("it is unreadable or has the wrong size")
+                self._index, self.path = index, path
+                return
+            except (ValueError, OSError) as exc:  # a cache: damage costs a build, never a wrong search
+                log.warning("annoy index file %s: %s; building the forest again", path, exc)
+        index = self._build(annoy_index, x)
+        if path is not None:
+            try:
+                with atomic_path(path) as tmp:
+                    if index.save(str(tmp)) is False:
+                        raise OSError(f"annoy could not write {tmp}")
+                write_sha256(path)
+                # save() leaves the index memory-mapped from tmp; reload from the final name.
+                index = annoy_index(dim, "angular")
+                index.load(str(path))
+                self.path = path
+            except OSError as exc:  # a folder without room only costs the next fit its forest
+                log.warning("annoy index: could not save its forest to %s (%s)", path, exc.strerror or exc)
+                index = self._build(annoy_index, x)
+        self._index = index
+
+    def _build(self, annoy_index, x: np.ndarray):
+        """The forest of the rows of ``x``, in memory."""
+        index = annoy_index(x.shape[1], "angular")
         index.set_seed(self.seed)
         for i, row in enumerate(x):
             index.add_item(i, row.tolist())
         index.build(self.n_trees, n_jobs=1)
-        if cache_dir is not None:
-            with atomic_path(cache_dir / fname) as tmp:
-                index.save(str(tmp))
-            # save() leaves the index memory-mapped from tmp; reload from the final name.
-            index = annoy_index(dim, "angular")
-            index.load(str(cache_dir / fname))
-            self.path = cache_dir / fname
-        self._index = index
+        return index
 
     def _search(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ids = np.empty(queries.shape[0], dtype=np.int64)

@@ -102,6 +102,22 @@ def test_annoy_forest_saved_beside_database(tmp_path):
     assert b.path == a.path
     q = np.concatenate([begin[:20], end[:20]], 1)
     np.testing.assert_array_equal(a.search(q)[0], b.search(q)[0])
+    # Damage (issue 62): changed or truncated bytes are never mapped; a warning, built again.
+    import rdd.index.annoy as annoy_module
+
+    good, ids = a.path.read_bytes(), a.search(q)[0]
+    path = a.path
+    del a, b  # they map the file that is damaged next
+    for damaged in (good[:-4] + b"\xff\xff\xff\xff", good[: len(good) // 2]):
+        path.unlink()  # a new file: damage in place would also change what a live map reads
+        path.write_bytes(damaged)
+        with caplog_at(annoy_module.log) as records:
+            c = load_index("annoy").fit(begin, end, cache_dir=tmp_path, key="abc123")
+        assert records == [f"annoy index file {path}: its sha256 does not match the one written with it "
+                           "(damaged); building the forest again"]
+        np.testing.assert_array_equal(c.search(q)[0], ids)
+        assert path.read_bytes() == good
+        del c
     assert len(list(tmp_path.glob("*.ann"))) == 1
 
 
