@@ -40,7 +40,7 @@ from rdd.cli.options import (
 )
 from rdd.data.episode import Episode
 from rdd.database.build import Entries, segment_entries
-from rdd.errors import UsageError
+from rdd.errors import InputError, UsageError
 from rdd.progress import progress
 
 
@@ -77,9 +77,26 @@ def _staged_entries(path: Path, episode: Episode) -> Entries:
 def cmd_build_db(args: argparse.Namespace) -> int:
     """Segment episodes (their sub-task annotations or the expert rule), build and calibrate the database."""
     workers = check_workers(args.workers, args)
-    out = check_output(args.out, "--out", args.force, kind="dir", inputs=[("--data", args.data), cache_input(args)])
+    given = [] if args.segments in ("auto", "subtasks", "expert") else [("--segments", args.segments)]
+    out = check_output(args.out, "--out", args.force, kind="dir",
+                       inputs=[("--data", args.data), cache_input(args), *given])
     with claim(out, "--out"):
         return _build(args, out, workers)
+
+
+def _given_segments(path: str, episodes) -> tuple[list, list]:
+    """``--segments FILE``: each episode's segments and labels as a decompose output (or a file reviewed
+    with ``python -m rdd review``) records them."""
+    from rdd.decomposers.given import GivenDecomposer
+    from rdd.review.session import read_predictions
+
+    read_predictions(path, flag="--segments")  # a missing or malformed file: named as this option's
+    try:
+        given = GivenDecomposer(file=path)
+        found = [given.decompose(ep) for ep in episodes]
+    except InputError as exc:
+        raise UsageError(f"--segments {path}: {exc}") from exc
+    return [f.segments for f in found], [f.instructions or [""] * len(f.segments) for f in found]
 
 
 def _build(args: argparse.Namespace, out: Path, workers: int) -> int:
@@ -105,6 +122,8 @@ def _build(args: argparse.Namespace, out: Path, workers: int) -> int:
                            "annotations (LeRobot: language_persistent subtask rows)")
         segmentations = [e.segments for e in episodes]
         instructions = [e.instructions or [""] * len(e.segments) for e in episodes]
+    elif source not in ("expert", "auto"):
+        segmentations, instructions = _given_segments(source, episodes)
     else:
         expert = expert_decomposer(args)
         segmentations = []
@@ -168,9 +187,10 @@ def add_parser(sub) -> None:
     p.add_argument("--encoder", required=True, help="encoder name (rdd.encoders), e.g. effnet_lite0")
     embed_args(p)
     expert_args(p)
-    p.add_argument("--segments", choices=("auto", "subtasks", "expert"), default="auto",
-                   help="sub-tasks from the episodes' annotations (LeRobot language_persistent subtask rows) "
-                        "or the expert rule; auto: annotations when every episode has them")
+    p.add_argument("--segments", default="auto", metavar="auto|subtasks|expert|FILE",
+                   help="sub-tasks from the episodes' annotations (LeRobot language_persistent subtask rows), "
+                        "the expert rule, or FILE (a decompose output, e.g. one reviewed with python -m rdd review); "
+                        "auto: annotations when every episode has them")
     p.add_argument("--out", required=True, help="database directory")
     force_arg(p)
     add_workers_arg(p)

@@ -133,6 +133,7 @@ def test_reviewed_file_round_trips_into_lerobot_language_rows(lerobot_factory, t
     import pyarrow.parquet as pq
 
     from rdd.data.load import load_episodes
+    from rdd.database.model import SubtaskDatabase
 
     src = lerobot_factory("v3.0", lengths=(30, 36, 24))
     base = ["--format", "lerobot", "--data", str(src)]
@@ -155,6 +156,14 @@ def test_reviewed_file_round_trips_into_lerobot_language_rows(lerobot_factory, t
     assert back == want
     rows = pq.read_table(sorted((tmp_path / "copy/data").rglob("*.parquet"))[0]).column("language_persistent")
     assert [r["content"] for r in rows.to_pylist()[0]] == want["episode_000000"][1]
+    # ... and a database's entries: build-db --segments takes the reviewed file as it is
+    assert main(["build-db", *base, "--segments", str(tmp_path / "reviewed.json"), "--encoder", "pixels",
+                 "--no-cache", "--no-calibrate", "--out", str(tmp_path / "db")]) == 0
+    db = SubtaskDatabase.load(tmp_path / "db")
+    for name, (segs, labels) in want.items():
+        assert db.episode_segments(name) == segs
+        assert [db.labels[i] for i in sorted((i for i, n in enumerate(db.episodes) if n == name),
+                                             key=lambda i: db.starts[i])] == labels
 
 
 def test_given_decomposer_refuses_a_file_of_other_episodes(toy_native, decomposed, tmp_path, cli_fails):
@@ -165,3 +174,13 @@ def test_given_decomposer_refuses_a_file_of_other_episodes(toy_native, decompose
     other.write_text(json.dumps(doc))
     cli_fails("decompose", "--format", "native", "--data", toy_native, "--decomposer", "given", "--option",
               f"file={other}", "--out", tmp_path / "x.json", expect=(str(other), "num_frames", "ep0"))
+
+
+def test_build_db_segments_file_errors_name_the_option(toy_native, decomposed, tmp_path, cli_fails):
+    base = ["build-db", "--format", "native", "--data", toy_native, "--encoder", "pixels", "--no-cache"]
+    cli_fails(*base, "--segments", tmp_path / "none.json", "--out", tmp_path / "db", expect=("--segments", "none.json"))
+    doc = json.loads(decomposed["pred"].read_text())
+    doc["episodes"] = doc["episodes"][1:]
+    part = tmp_path / "part.json"
+    part.write_text(json.dumps(doc))
+    cli_fails(*base, "--segments", part, "--out", tmp_path / "db", expect=("--segments", "part.json", "'ep0'"))

@@ -1,6 +1,7 @@
-"""``python -m rdd review`` in a real browser (issue 63): headless Chromium opens the page on real RLBench
-and Unitree G1 episodes, moves a boundary with the keys, renames a label, marks the episode reviewed,
-saves, and the saved JSON says so. Skipped, with the install line, without Chromium or selenium.
+"""``python -m rdd review`` in a real browser (issue 63): headless Chromium opens the page on real
+RLBench and Unitree G1 episodes, drags a boundary and moves it with the keys, renames a label, marks
+the episode reviewed, saves, and the saved JSON says so. Skipped, with the install line, without
+Chromium or selenium.
 
 ``RDD_REVIEW_SCREENSHOTS=docs`` also writes the page's screenshots there (docs/review.md shows them).
 """
@@ -32,8 +33,8 @@ def decompose_real(tmp: Path, data: list[str], build: list[str], decompose: list
 
 def edit_in_browser(fmt: str, data: Path, pred: Path, db: Path, out: Path, reader_options=None,
                     shots: str | None = None) -> dict:
-    """Open the page, edit the first listed episode (move its first boundary by 3 frames with the
-    keys, rename its first segment, mark it reviewed), save; what changed, as the page saw it."""
+    """Open the page, edit the first listed episode (drag its first boundary, then move it 3 frames with
+    the keys, rename its first segment, mark it reviewed), save; what changed, as the page saw it."""
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
     from selenium.webdriver.common.keys import Keys
@@ -59,13 +60,19 @@ def edit_in_browser(fmt: str, data: Path, pred: Path, db: Path, out: Path, reade
             wait.until(lambda d: d.execute_script(loaded))
             d.save_screenshot(str(Path(shots) / "review_episode.png"))
         before = d.execute_script("return state.rec.segments.map((s) => s.slice())")
-        room = before[1][1] - before[1][0]
-        key, shift = ("d", 3) if room > 4 else ("a", -3)
+        settled = "return state.pending === 0 && state.rec.segments[0][1]"
+        # drag the first boundary a fifth of the way into the next segment, then move it with the keys
         handle = d.find_element(By.CSS_SELECTOR, '.handle[data-b="0"]')
-        ActionChains(d).click_and_hold(handle).release().perform()
+        width = d.find_element(By.ID, "timeline").size["width"]
+        n = d.execute_script("return state.rec.num_frames")
+        frames = max(2, (before[1][1] - before[1][0]) // 5)
+        ActionChains(d).click_and_hold(handle).move_by_offset(round(frames * width / n), 0).release().perform()
+        wait.until(lambda d: d.execute_script(settled) not in (before[0][1], None))
+        dragged = d.execute_script("return state.rec.segments.map((s) => s.slice())")
+        assert before[0][1] < dragged[0][1] < before[1][1]
+        key, shift = ("d", 3) if dragged[1][1] - dragged[1][0] > 4 else ("a", -3)
         ActionChains(d).send_keys(key * 3).perform()
-        settled = "return state.pending === 0 && state.rec.sources !== undefined && state.rec.segments[0][1]"
-        wait.until(lambda d: d.execute_script(settled) == before[0][1] + shift)
+        wait.until(lambda d: d.execute_script(settled) == dragged[0][1] + shift)
         d.find_element(By.CSS_SELECTOR, '.seg[data-k="0"]').click()
         label = d.find_element(By.ID, "label")
         label.clear()
@@ -79,7 +86,7 @@ def edit_in_browser(fmt: str, data: Path, pred: Path, db: Path, out: Path, reade
         assert d.execute_script(loaded)  # every frame shown decoded
         errors = [e for e in d.get_log("browser") if e["level"] == "SEVERE"]
     assert not errors, errors
-    return {"episode": name, "before": before, "shift": shift}
+    return {"episode": name, "before": dragged, "shift": shift}
 
 
 def check_saved(out: Path, pred: Path, edit: dict) -> None:
