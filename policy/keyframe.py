@@ -60,9 +60,9 @@ def _materialise(episode: Episode) -> Episode:
 
 def build_dataset(episodes: Iterable[Episode], labeler: Labeler, embedder: InstructionEmbedder,
                   cfg: DatasetConfig | None = None) -> KeyframeDataset:
-    """Samples (observation, labelled instruction) -> keyframe from expert-segmented episodes."""
+    """Samples (observation, labelled instruction, task goal) -> keyframe from expert-segmented episodes."""
     cfg = cfg or DatasetConfig()
-    rows: list[tuple[str, Anchors, np.ndarray]] = []
+    rows: list[tuple[str, Anchors, np.ndarray, str]] = []
     for ep in episodes:
         if cfg.skip_failed and ep.meta.get("success") is False:
             continue
@@ -76,7 +76,7 @@ def build_dataset(episodes: Iterable[Episode], labeler: Labeler, embedder: Instr
             target = np.concatenate([ep.ee_poses[key, :7], [1.0 if ep.gripper_open[key] >= 0.5 else 0.0]])
             n = min(cfg.frames_per_segment, end - start)
             for t in np.unique(np.linspace(start, end - 1, n).round().astype(int)):
-                rows.append((instr, anchors_from_observation(observation_at(ep, int(t))), target))
+                rows.append((instr, anchors_from_observation(observation_at(ep, int(t))), target, ep.goal))
     if not rows:
         raise ValueError("no training samples: every episode was empty or failed")
     instr_texts = sorted({r[0] for r in rows})
@@ -89,7 +89,9 @@ def build_dataset(episodes: Iterable[Episode], labeler: Labeler, embedder: Instr
     pos = np.zeros((n, kmax, 3), dtype=np.float32)
     yaw = np.zeros((n, kmax), dtype=np.float32)
     state = np.zeros((n, kmax, STATE_DIM), dtype=np.float32)
-    for r, (_, a, _) in enumerate(rows):
+    goal_texts = sorted({r[3] for r in rows})
+    g_of = {t: i for i, t in enumerate(goal_texts)}
+    for r, (_, a, _, _) in enumerate(rows):
         k = len(a.names)
         name_idx[r, :k] = [n_of[x] for x in a.names]
         pos[r, :k], yaw[r, :k], state[r, :k] = a.pos, a.yaw, a.state
@@ -103,6 +105,9 @@ def build_dataset(episodes: Iterable[Episode], labeler: Labeler, embedder: Instr
         name_texts=name_texts,
         pos=pos, yaw=yaw, state=state,
         target=np.stack([r[2] for r in rows]).astype(np.float32),
+        goal_idx=np.array([g_of[r[3]] for r in rows], dtype=np.int64),
+        goal_table=embedder.embed(goal_texts),
+        goal_texts=goal_texts,
     )
 
 
@@ -144,7 +149,8 @@ def train_policy(episodes: Sequence[Episode], labeler: Labeler, out_dir: str | o
 
 
 class KeyframeBCPolicy(Policy):
-    """Keyframe BC policy: object anchors scored against the instruction, keyframe relative to one."""
+    """Keyframe BC policy: object anchors scored against the instruction and the task goal, keyframe
+    relative to one."""
 
     def __init__(self, net: KeyframeNet, embedder: InstructionEmbedder, meta: Mapping[str, Any] | None = None,
                  checkpoint: Path | None = None) -> None:
@@ -165,7 +171,7 @@ class KeyframeBCPolicy(Policy):
         return cls(net, shared_embedder(text_cache_dir), meta=meta, checkpoint=Path(path))
 
     def reset(self, goal: str) -> None:
-        """Remember the episode's goal (the network itself acts on sub-task instructions)."""
+        """Start an episode whose task goal is ``goal`` (the network reads it beside each instruction)."""
         self.goal = str(goal)
         self.last_anchor = None
 
@@ -173,15 +179,16 @@ class KeyframeBCPolicy(Policy):
     def act(self, observation: Mapping[str, Any], instruction: str) -> KeyframeAction:
         """Next keyframe for ``instruction``; any text (even unfamiliar) yields a valid action."""
         a = anchors_from_observation(observation)
-        emb = self.embedder.embed([str(instruction)] + a.names)
+        emb = self.embedder.embed([str(instruction), self.goal or " "] + a.names)
         pred = self.net(
             torch.as_tensor(emb[:1]),
             torch.as_tensor(a.proprio[None], dtype=torch.float32),
-            torch.as_tensor(emb[None, 1:]),
+            torch.as_tensor(emb[None, 2:]),
             torch.as_tensor(a.pos[None], dtype=torch.float32),
             torch.as_tensor(a.yaw[None], dtype=torch.float32),
             torch.as_tensor(a.state[None], dtype=torch.float32),
             torch.ones(1, len(a.names), dtype=torch.bool),
+            goal=torch.as_tensor(emb[1:2]) if self.net.cfg.read_goal else None,
         )
         sel = KeyframeNet.select(pred)
         self.last_anchor = a.names[int(sel["anchor"][0])]

@@ -38,11 +38,15 @@ class NetConfig:
     # default: the expert picks between them by reachability, which the net learns from the scene,
     # and choosing the other one often runs the arm into joint limits or the cabinet.
     symmetric_gripper: bool = False
+    # Read the task goal L beside the sub-task instruction, as the paper's policy pi(a | s, o, l, L)
+    # does (RACER's actor reads both): the goal can tell what a loose instruction leaves open.
+    read_goal: bool = True
     # each field's range (checked when built: the harness builds it while validating the config)
     OPTION_RULES: ClassVar = {
         "text_dim": whole(1), "proprio_dim": whole(1), "state_dim": whole(1), "hidden": whole(1),
         "pos_sigma": number(0.0, exclusive_min=True), "rot_kappa": number(0.0, exclusive_min=True),
         "gripper_weight": number(0.0), "match_scale": number(0.0, exclusive_min=True), "symmetric_gripper": FLAG,
+        "read_goal": FLAG,
     }
 
     def __post_init__(self) -> None:
@@ -114,6 +118,17 @@ class KeyframeNet(nn.Module):
         self.match = nn.Linear(cfg.text_dim, cfg.text_dim, bias=False)
         with torch.no_grad():
             self.match.weight.copy_(torch.eye(cfg.text_dim) * cfg.match_scale)
+        if cfg.read_goal:
+            # The goal joins the instruction's features and its match with the anchors. The match
+            # starts as the instruction's (a sharp cosine similarity): a goal names the objects that
+            # matter, and decides where the instruction leaves a choice (starting it at zero, the
+            # net learned layouts instead). The features start at zero and add what training finds.
+            self.goal = nn.Sequential(nn.Linear(cfg.text_dim, h), nn.GELU(), nn.Linear(h, h))
+            self.goal_match = nn.Linear(cfg.text_dim, cfg.text_dim, bias=False)
+            with torch.no_grad():
+                self.goal[-1].weight.zero_()
+                self.goal[-1].bias.zero_()
+                self.goal_match.weight.copy_(torch.eye(cfg.text_dim) * cfg.match_scale)
         self.head = nn.Sequential(nn.Linear(h, h), nn.GELU(), nn.Linear(h, 3 + 4))
         self.gripper = nn.Sequential(nn.Linear(2 * h + cfg.proprio_dim, h), nn.GELU(), nn.Linear(h, 1))
 
@@ -126,11 +141,13 @@ class KeyframeNet(nn.Module):
         yaw: torch.Tensor,  # (B, K) anchor yaw
         state: torch.Tensor,  # (B, K, S)
         mask: torch.Tensor,  # (B, K) bool, True where the anchor exists
+        goal: torch.Tensor | None = None,  # (B, D) task goal embedding (read_goal)
     ) -> dict[str, torch.Tensor]:
         """Per-anchor log-weights (B, K), positions (B, K, 3), quaternions (B, K, 4); gripper logit (B,)."""
-        return self.forward_indexed(instr, torch.arange(instr.shape[0]), names.reshape(-1, names.shape[-1]),
+        rows = torch.arange(instr.shape[0])
+        return self.forward_indexed(instr, rows, names.reshape(-1, names.shape[-1]),
                                     torch.arange(names.shape[0] * names.shape[1]).reshape(names.shape[:2]),
-                                    proprio, pos, yaw, state, mask)
+                                    proprio, pos, yaw, state, mask, goal, None if goal is None else rows)
 
     def forward_indexed(
         self,
@@ -143,9 +160,13 @@ class KeyframeNet(nn.Module):
         yaw: torch.Tensor,
         state: torch.Tensor,
         mask: torch.Tensor,
+        goal_table: torch.Tensor | None = None,  # (G, D) distinct goal embeddings
+        goal_idx: torch.Tensor | None = None,  # (B,) rows of goal_table
     ) -> dict[str, torch.Tensor]:
         """:meth:`forward` with text embeddings given once per distinct text (the training path:
         the 384-d projections run on the few distinct texts, not on every anchor of every sample)."""
+        if self.cfg.read_goal and (goal_table is None or goal_idx is None):
+            raise ValueError("this keyframe network reads the task goal (NetConfig.read_goal): pass goal_table and goal_idx")
         k = name_idx.shape[1]
         ee = proprio[:, None, :3]
         rel_local = rotate_by_yaw(ee - pos, -yaw)  # hand relative to the anchor, in its yaw frame
@@ -164,12 +185,17 @@ class KeyframeNet(nn.Module):
         )
         t_all = self.text(instr_table)
         t1 = t_all[instr_idx]
+        if self.cfg.read_goal:
+            t1 = t1 + self.goal(goal_table)[goal_idx]
         t = t1[:, None, :].expand(-1, k, -1)
         safe_idx = name_idx.clamp(min=0)
         n = self.name(name_table)[safe_idx]
         g = self.geo(geo_in)
         feats = self.trunk(torch.cat([t * n, t, n, g], dim=-1))
-        match = (self.match(instr_table)[instr_idx][:, None, :] * name_table[safe_idx]).sum(-1)
+        query = self.match(instr_table)[instr_idx]
+        if self.cfg.read_goal:
+            query = query + self.goal_match(goal_table)[goal_idx]
+        match = (query[:, None, :] * name_table[safe_idx]).sum(-1)
         logits = (self.score(feats).squeeze(-1) + match).masked_fill(~mask, float("-inf"))
         log_w = torch.log_softmax(logits, dim=-1)
         out = self.head(feats)

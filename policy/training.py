@@ -40,14 +40,19 @@ class KeyframeDataset:
     yaw: np.ndarray  # (N, K)
     state: np.ndarray  # (N, K, S)
     target: np.ndarray  # (N, 8) keyframe: xyz, quat xyzw, gripper open
+    goal_idx: np.ndarray  # (N,) int rows of goal_table: each sample's task goal
+    goal_table: np.ndarray  # (G, D) float32 goal embeddings
+    goal_texts: list[str]  # (G,) the goals themselves
 
     def __post_init__(self) -> None:
         n = len(self.instr_idx)
-        for f in ("proprio", "name_idx", "pos", "yaw", "state", "target"):
+        for f in ("proprio", "name_idx", "pos", "yaw", "state", "target", "goal_idx"):
             if len(getattr(self, f)) != n:
                 raise ValueError(f"KeyframeDataset.{f} has {len(getattr(self, f))} rows, expected {n}")
         if n and (self.instr_idx.max() >= len(self.instr_table) or self.instr_idx.min() < 0):
             raise ValueError("KeyframeDataset.instr_idx points outside instr_table")
+        if n and (self.goal_idx.max() >= len(self.goal_table) or self.goal_idx.min() < 0):
+            raise ValueError("KeyframeDataset.goal_idx points outside goal_table")
         if n and self.name_idx.max() >= len(self.name_table):
             raise ValueError("KeyframeDataset.name_idx points outside name_table")
 
@@ -197,6 +202,8 @@ def _tensors(data: KeyframeDataset) -> dict[str, torch.Tensor]:
         "yaw": torch.as_tensor(data.yaw, dtype=torch.float32),
         "state": torch.as_tensor(data.state, dtype=torch.float32),
         "target": torch.as_tensor(data.target, dtype=torch.float32),
+        "goal_table": torch.as_tensor(data.goal_table, dtype=torch.float32),
+        "goal_idx": torch.as_tensor(data.goal_idx, dtype=torch.long),
     }
 
 
@@ -204,7 +211,7 @@ def _inputs(t: dict[str, torch.Tensor], idx: torch.Tensor) -> tuple[torch.Tensor
     """Arguments of ``KeyframeNet.forward_indexed`` for the samples ``idx``."""
     name_idx = t["name_idx"][idx]
     return (t["instr_table"], t["instr_idx"][idx], t["name_table"], name_idx, t["proprio"][idx],
-            t["pos"][idx], t["yaw"][idx], t["state"][idx], name_idx >= 0)
+            t["pos"][idx], t["yaw"][idx], t["state"][idx], name_idx >= 0, t["goal_table"], t["goal_idx"][idx])
 
 
 @torch.no_grad()
@@ -250,7 +257,8 @@ def load_checkpoint(path: Path) -> tuple[KeyframeNet, dict]:
     except Exception as exc:  # noqa: BLE001 - re-raised in one line naming the file
         raise InputError(f"policy checkpoint {path} {unreadable_reason(Path(path), exc)}; "
                          "retrain the policy to write a checkpoint of weights only") from exc
-    net = KeyframeNet(NetConfig(**blob["net_cfg"]))
+    # A checkpoint from before the network read the goal says nothing of it: it reads the instruction only.
+    net = KeyframeNet(NetConfig(**{"read_goal": False, **blob["net_cfg"]}))
     net.load_state_dict(blob["state_dict"])
     net.eval()
     return net, blob["meta"]
