@@ -184,3 +184,39 @@ def test_build_db_segments_file_errors_name_the_option(toy_native, decomposed, t
     part = tmp_path / "part.json"
     part.write_text(json.dumps(doc))
     cli_fails(*base, "--segments", part, "--out", tmp_path / "db", expect=("--segments", "part.json", "'ep0'"))
+
+
+def test_review_command_serves_the_page_on_localhost(decomposed, tmp_path):
+    """``python -m rdd review --no-browser`` as a user runs it: the page and its list answer on 127.0.0.1."""
+    import os
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    from rdd.review.browser import free_port
+
+    port = free_port()
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": f"{root}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    proc = subprocess.Popen([sys.executable, "-m", "rdd", "review", "--format", "native", "--data",
+                             str(decomposed["data"]), "--pred", str(decomposed["pred"]), "--out",
+                             str(tmp_path / "out.json"), "--no-browser", "--port", str(port)],
+                            env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/episodes", timeout=5) as answer:
+                    page = json.loads(answer.read())
+                break
+            except OSError:
+                assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.poll() else ""
+                time.sleep(0.1)
+        assert page["episodes"] == 3
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=5) as answer:
+            assert b"rdd review" in answer.read()
+    finally:
+        proc.terminate()
+        proc.wait(30)
+    assert not (tmp_path / "out.json").exists()  # nothing saved, nothing written
