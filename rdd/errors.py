@@ -7,9 +7,11 @@ at fault, so a command-line front end prints it as it is, without a traceback. I
 
 from __future__ import annotations
 
+import contextlib
 import signal
+from typing import Any
 
-__all__ = ["InputError", "Terminated", "UsageError", "interrupt_on_sigterm"]
+__all__ = ["InputError", "Terminated", "UsageError", "interrupt_on_sigterm", "restore_sigterm"]
 
 
 class InputError(ValueError):
@@ -35,6 +37,16 @@ def _raise_terminated(signum: int, _frame) -> None:
     raise Terminated(signal.Signals(signum).name)
 
 
-def interrupt_on_sigterm() -> None:
-    """Turn SIGTERM into :class:`Terminated` in this process (its main thread)."""
-    signal.signal(signal.SIGTERM, _raise_terminated)
+def interrupt_on_sigterm() -> Any:
+    """Turn SIGTERM into :class:`Terminated` in this process (from its main thread; elsewhere, where
+    Python allows no handler, SIGTERM keeps its default); returns the handler it replaced, to restore."""
+    with contextlib.suppress(ValueError):
+        return signal.signal(signal.SIGTERM, _raise_terminated)
+    return None
+
+
+def restore_sigterm(previous: Any) -> None:
+    """Put back the SIGTERM handler that :func:`interrupt_on_sigterm` replaced (None: it replaced none)."""
+    if previous is not None:
+        with contextlib.suppress(ValueError):
+            signal.signal(signal.SIGTERM, previous)

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from rdd.atomic import FULL_ERRNOS
 from rdd.cli import build_db, calibrate, decompose, demo, evaluate, plot, review, serve
 from rdd.cli.common import full_disk
-from rdd.errors import Terminated, UsageError, interrupt_on_sigterm
+from rdd.errors import Terminated, UsageError, interrupt_on_sigterm, restore_sigterm
 
 # One module per subcommand, each adding its own parser; the order is the order of ``--help``.
 SUBCOMMANDS = (build_db, calibrate, decompose, evaluate, plot, demo, serve, review)
@@ -44,7 +44,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "rdd") -> int:
     args = build_parser(prog).parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
-    interrupt_on_sigterm()
+    previous = interrupt_on_sigterm()  # restored on return: main() may run inside another program
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt as exc:
@@ -63,6 +63,8 @@ def main(argv: Sequence[str] | None = None, prog: str = "rdd") -> int:
         if isinstance(exc, OSError) and exc.errno in FULL_ERRNOS:
             msg = full_disk(args, exc)
         return _report(args, str(msg), f"error ({args.command})")
+    finally:
+        restore_sigterm(previous)
 
 
 def _report(args: argparse.Namespace, message: str, prefix: str) -> int:

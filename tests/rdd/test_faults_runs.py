@@ -219,3 +219,10 @@ def test_sigterm_during_the_lerobot_copy_removes_its_temporaries(lerobot_factory
     assert not any(".v30-" in name or ".tmp" in name for name in hidden(tmp_path)), hidden(tmp_path)
     assert main([*lerobot_args(src, out), "--out", str(tmp_path / "seg.json")]) == 0
     assert hidden(tmp_path) == []
+
+
+def test_main_gives_back_the_sigterm_handler_it_found(native_six, tmp_path):
+    """In-process callers (a notebook, a harness) keep their own SIGTERM handling after a command."""
+    mine = signal.getsignal(signal.SIGTERM)
+    assert main(uniform_args(native_six, tmp_path / "x.json")) == 0
+    assert signal.getsignal(signal.SIGTERM) is mine
