@@ -141,6 +141,9 @@ class PlannerConfig:
     # describe, then plan: the planner first captions the image (planner.captions; the base learns
     # it from pretrain.caption_frame_stride) and its prompt states that caption before the question
     describe_scene: bool = False
+    # The prompt states the robot's proprioceptive state (gripper, hand height), as the paper's
+    # planner pi(l_t | s_t, o_t, l_{t-1}, L) reads s_t.
+    read_state: bool = True
     image_size: int = 64
     patch_size: int = 16
     vision_hidden: int = 64

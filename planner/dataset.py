@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torch.nn.utils.rnn import pad_sequence
 
-from planner.prompts import render_prompt, render_target
+from planner.prompts import render_prompt, render_target, robot_state
 from rdd.data.episode import Episode
 from rdd.segments import Segment, validate_segments
 
@@ -21,6 +21,7 @@ class PlannerExample:
 
     ``question`` set: an image question (a scene caption's) asked instead of the planner prompt.
     ``scene``: a description of the image stated in the planner prompt (``describe_scene``).
+    ``state``: the robot's proprioceptive state at the frame, in words (``planner.prompts.robot_state``).
     """
 
     image: np.ndarray
@@ -32,15 +33,18 @@ class PlannerExample:
     frame: int = -1
     question: str | None = None
     scene: str | None = None
+    state: str | None = None
 
 
 def examples_from_episode(episode: Episode, segments: Sequence[Segment] | None = None,
                           instructions: Sequence[str] | None = None, view: str = "front",
                           include_inner_frames: bool = False,
-                          inner_frame_stride: int = 1) -> list[PlannerExample]:
+                          inner_frame_stride: int = 1, read_state: bool = True) -> list[PlannerExample]:
     """One example per segment start (plus inner frames if asked), previous instruction None first.
 
     Inner frames are every ``inner_frame_stride``-th frame of a segment, counted from its start.
+    ``read_state``: each example states the robot's state at its frame (where the episode records
+    the hand's pose and the gripper).
 
     ``segments``/``instructions`` default to the episode's own (expert) annotation.
     """
@@ -61,12 +65,14 @@ def examples_from_episode(episode: Episode, segments: Sequence[Segment] | None =
         frames = range(start, end, inner_frame_stride) if include_inner_frames else [start]
         picks.extend((f, i) for f in frames)
     images = episode.frames(view, [f for f, _ in picks])
+    states = read_state and episode.ee_poses is not None and episode.gripper_open is not None
     out = []
     for img, (f, i) in zip(images, picks, strict=True):
         out.append(PlannerExample(image=np.ascontiguousarray(img), goal=episode.goal,
                                   previous_instruction=instructions[i - 1] if i > 0 else None,
                                   target=instructions[i], task=episode.task,
-                                  episode=episode.name, frame=int(f)))
+                                  episode=episode.name, frame=int(f),
+                                  state=robot_state(episode.ee_poses[f], episode.gripper_open[f]) if states else None))
     return out
 
 
@@ -82,25 +88,27 @@ def examples_fingerprint(examples: Sequence[PlannerExample]) -> str:
             h.update(b"\x02" + ex.question.encode())
         if ex.scene is not None:
             h.update(b"\x03" + ex.scene.encode())
+        if ex.state is not None:
+            h.update(b"\x04" + ex.state.encode())
     return h.hexdigest()
 
 
 def encode_prompt(processor, image: np.ndarray, goal: str, previous_instruction: str | None,
-                  question: str | None = None, scene: str | None = None) -> dict:
+                  question: str | None = None, scene: str | None = None, state: str | None = None) -> dict:
     """Processor outputs for one prompt (image tokens expanded), batch dimension removed."""
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[-1] != 3 or image.dtype != np.uint8:
         raise ValueError(f"planner image must be uint8 (H, W, 3), got {image.dtype} {image.shape}")
-    text = render_prompt(processor.tokenizer, goal, previous_instruction, question, scene)
+    text = render_prompt(processor.tokenizer, goal, previous_instruction, question, scene, state)
     enc = processor(images=[image], text=[text], return_tensors="pt", add_special_tokens=False)
     return {k: v[0] for k, v in enc.items()}
 
 
 def encode_example(processor, ex: PlannerExample) -> dict:
     """Prompt plus answer token ids with labels -100 on the prompt (only the answer is learned)."""
-    enc = encode_prompt(processor, ex.image, ex.goal, ex.previous_instruction, ex.question, ex.scene)
+    enc = encode_prompt(processor, ex.image, ex.goal, ex.previous_instruction, ex.question, ex.scene, ex.state)
     answer = render_target(processor.tokenizer, ex.goal, ex.previous_instruction, ex.target,
-                           ex.question, ex.scene)
+                           ex.question, ex.scene, ex.state)
     ans_ids = torch.tensor(processor.tokenizer(answer, add_special_tokens=False)["input_ids"],
                            dtype=torch.long)
     prompt_ids = enc["input_ids"]

@@ -20,5 +20,7 @@ class Planner(ABC):
         """Start a new episode of ``task`` (env ``seed``) with language goal ``goal``."""
 
     @abstractmethod
-    def next_instruction(self, image: Any, goal: str, previous_instruction: str | None) -> str:
-        """The next sub-task instruction for the camera ``image``, the goal and the previous instruction."""
+    def next_instruction(self, image: Any, goal: str, previous_instruction: str | None, state: Any = None) -> str:
+        """The next sub-task instruction for the camera ``image``, the goal, the previous instruction
+        and the robot's proprioceptive ``state`` (a mapping with ``ee_pose`` and ``gripper_open``),
+        as the paper's planner pi(l_t | s_t, o_t, l_{t-1}, L) reads them."""

@@ -51,7 +51,8 @@ class LlavaPlanner:
         """Boundary examples of episodes carrying their segments and instructions."""
         from planner.train import training_examples
 
-        return training_examples(episodes, settings or TrainSettings(), self.config.view)
+        return training_examples(episodes, settings or TrainSettings(), self.config.view,
+                                 read_state=self.config.read_state)
 
     def pretrain(self, episodes: Sequence, out_dir: Path, *, extra_corpus: Sequence[str] = (),
                  vocabulary_episodes: Sequence = (), progress: bool = True) -> Path:

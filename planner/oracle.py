@@ -38,7 +38,7 @@ class OraclePlanner(Planner):
             raise ValueError(f"oracle planner: the expert plan of {task!r} seed {seed} is empty")
         self._plan, self._next = plan, 0
 
-    def next_instruction(self, image: Any, goal: str, previous_instruction: str | None) -> str:
+    def next_instruction(self, image: Any, goal: str, previous_instruction: str | None, state: Any = None) -> str:
         """The expert's next instruction (the last one again once the plan is played out)."""
         if self._plan is None:
             raise RuntimeError("oracle planner: call reset(task, seed, goal) before next_instruction")

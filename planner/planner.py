@@ -6,6 +6,7 @@ import hashlib
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -15,7 +16,7 @@ from planner.config import PlannerConfig
 from planner.dataset import PlannerCollator, PlannerExample, encode_prompt
 from planner.interface import Planner
 from planner.models import load_model
-from planner.prompts import clean_output
+from planner.prompts import clean_output, state_text
 
 CAPTION_MEMORY = 100_000  # captions a describer keeps (about 10 MB); past it, it starts afresh
 
@@ -52,12 +53,15 @@ class VLMPlanner(Planner):
     @torch.no_grad()
     def predict(self, queries: Sequence[tuple], batch_size: int = 16,
                 max_new_tokens: int | None = None) -> list[str]:
-        """Next instruction for each (image, goal, previous_instruction[, question]).
+        """Next instruction for each (image, goal, previous_instruction[, question[, state]]).
 
         A query with a question (a scene caption's) asks that instead of the planner prompt; with
-        ``describe_scene`` the others state the planner's description of their image first.
+        ``describe_scene`` the others state the planner's description of their image first; ``state``
+        is the robot's state in words (stated only when the config reads it).
         """
-        queries = [(*q, None)[:4] for q in queries]
+        queries = [(*q, None, None)[:5] for q in queries]
+        if not self.cfg.read_state:
+            queries = [(*q[:4], None) for q in queries]
         scenes: list[str | None] = [None] * len(queries)
         ask = [i for i, q in enumerate(queries) if q[3] is None]
         if self._describer is not None and ask:
@@ -68,8 +72,9 @@ class VLMPlanner(Planner):
         tok = self.processor.tokenizer
         for i in range(0, len(queries), batch_size):
             chunk = queries[i: i + batch_size]
-            items = [encode_prompt(self.processor, *q, scene)
-                     for q, scene in zip(chunk, scenes[i: i + batch_size], strict=True)]
+            items = [encode_prompt(self.processor, img, goal, prev, question, scene, state)
+                     for (img, goal, prev, question, state), scene
+                     in zip(chunk, scenes[i: i + batch_size], strict=True)]
             batch = self._collate(items)
             batch = {k: v.to(self.device) for k, v in batch.items()}
             if "pixel_values" in batch:
@@ -78,7 +83,7 @@ class VLMPlanner(Planner):
                                       do_sample=False, num_beams=1, eos_token_id=self._stop,
                                       pad_token_id=tok.pad_token_id)
             new = gen[:, batch["input_ids"].shape[1]:]
-            for (_img, goal, prev, _question), ids in zip(chunk, new, strict=True):
+            for (_img, goal, prev, _question, _state), ids in zip(chunk, new, strict=True):
                 text = clean_output(tok.decode(ids, skip_special_tokens=True))
                 if not text:
                     # an empty answer carries no new sub-task: keep the robot on the previous one
@@ -109,14 +114,16 @@ class VLMPlanner(Planner):
         texts = self.describe([e.image for e in examples], batch_size)
         return [replace(e, scene=t) for e, t in zip(examples, texts, strict=True)]
 
-    def next_instruction(self, image: np.ndarray, goal: str, previous_instruction: str | None) -> str:
-        """The next sub-task instruction (greedy, at most ``max_new_tokens`` tokens)."""
-        return self.predict([(image, goal, previous_instruction)])[0]
+    def next_instruction(self, image: np.ndarray, goal: str, previous_instruction: str | None,
+                         state: Any = None) -> str:
+        """The next sub-task instruction (greedy, at most ``max_new_tokens`` tokens); ``state``: the
+        robot's (an observation's ``ee_pose`` and ``gripper_open``, or their words)."""
+        return self.predict([(image, goal, previous_instruction, None, state_text(state))])[0]
 
     def hits(self, examples: Sequence[PlannerExample],
              batch_size: int = 16) -> tuple[list[str], list[bool]]:
         """Predictions for ``examples`` and whether each equals its target (whitespace/full stop insensitive)."""
-        preds = self.predict([(e.image, e.goal, e.previous_instruction, e.question) for e in examples],
+        preds = self.predict([(e.image, e.goal, e.previous_instruction, e.question, e.state) for e in examples],
                              batch_size=batch_size)
         return preds, [p == clean_output(e.target) for p, e in zip(preds, examples, strict=True)]
 

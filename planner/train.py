@@ -183,10 +183,11 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
 
 
 def training_examples(episodes: Iterable, settings: TrainSettings, view: str = "front",
-                      segmentations: Sequence | None = None) -> list[PlannerExample]:
+                      segmentations: Sequence | None = None, read_state: bool = True) -> list[PlannerExample]:
     """Examples of a training stage from labelled episodes (own segments/instructions unless given).
 
     ``segmentations``: optional (segments, instructions) per episode, e.g. one decomposer's output.
+    ``read_state``: the prompts state the robot's state (``PlannerConfig.read_state``).
     """
     episodes = list(episodes)
     if segmentations is not None and len(segmentations) != len(episodes):
@@ -196,9 +197,9 @@ def training_examples(episodes: Iterable, settings: TrainSettings, view: str = "
     for ep, (segs, instr) in zip(episodes, labelled, strict=True):
         out.extend(examples_from_episode(ep, segs, instr, view=view,
                                          include_inner_frames=settings.include_inner_frames,
-                                         inner_frame_stride=settings.inner_frame_stride))
+                                         inner_frame_stride=settings.inner_frame_stride, read_state=read_state))
     if settings.ambiguous_frame_stride and not settings.include_inner_frames:
-        out += ambiguous_inner_examples(episodes, labelled, out, settings.ambiguous_frame_stride, view)
+        out += ambiguous_inner_examples(episodes, labelled, out, settings.ambiguous_frame_stride, view, read_state)
     return out
 
 
@@ -207,7 +208,7 @@ def _context(ex: PlannerExample) -> tuple:
 
 
 def ambiguous_inner_examples(episodes: Sequence, labelled: Sequence[tuple], boundary: Sequence[PlannerExample],
-                             stride: int, view: str) -> list[PlannerExample]:
+                             stride: int, view: str, read_state: bool = True) -> list[PlannerExample]:
     """Every ``stride``-th inner frame of the segments whose context (task, goal, previous
     instruction) precedes more than one next instruction among the ``boundary`` examples."""
     targets: dict[tuple, set[str]] = {}
@@ -223,7 +224,7 @@ def ambiguous_inner_examples(episodes: Sequence, labelled: Sequence[tuple], boun
         if ep.name not in holding:  # no frame of it to add: decode none
             continue
         inner = examples_from_episode(ep, segs, instr, view=view, include_inner_frames=True,
-                                      inner_frame_stride=stride)
+                                      inner_frame_stride=stride, read_state=read_state)
         out += [ex for ex in inner if _context(ex) in ambiguous and (ex.episode, ex.frame) not in starts]
     return out
 
@@ -232,7 +233,7 @@ def tokenizer_corpus(examples: Iterable[PlannerExample]) -> list[str]:
     """Texts the tiny tokenizer is trained on: prompts (goals, previous instructions) and targets."""
     out = []
     for ex in examples:
-        out.append(user_prompt(ex.goal, ex.previous_instruction, ex.question, ex.scene))
+        out.append(user_prompt(ex.goal, ex.previous_instruction, ex.question, ex.scene, ex.state))
         out.append(ex.target)
     return out
 

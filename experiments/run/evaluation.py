@@ -35,7 +35,8 @@ def run_episode(env: Any, seed: int, planner: Planner, policy: Policy, max_steps
     steps = 0
     success = bool(info.get("success", False))
     while not success and steps < max_steps:
-        instruction = planner.next_instruction(comp.observation_image(obs, view), goal, previous)
+        instruction = planner.next_instruction(comp.observation_image(obs, view), goal, previous,
+                                               state={"ee_pose": obs["ee_pose"], "gripper_open": obs["gripper_open"]})
         action = policy.act(comp.policy_observation(env, obs), instruction)
         obs, _reward, terminated, truncated, info = env.step(comp.action_array(action))
         steps += 1
