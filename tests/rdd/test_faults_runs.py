@@ -226,3 +226,18 @@ def test_main_gives_back_the_sigterm_handler_it_found(native_six, tmp_path):
     mine = signal.getsignal(signal.SIGTERM)
     assert main(uniform_args(native_six, tmp_path / "x.json")) == 0
     assert signal.getsignal(signal.SIGTERM) is mine
+
+
+def test_the_next_owner_removes_what_a_killed_run_left_beside_its_output(native_six, tmp_path):
+    """What SIGKILL leaves mid-write (atomic temporaries beside the output: a database's whole copy,
+    the old folder an overwrite moved aside, a half-written JSON) is removed by the next run on it."""
+    left = [tmp_path / ".db.k1ll3d_x.tmp", tmp_path / ".db.k1ll3d_y.old", tmp_path / ".out.k1ll3d_z.tmp.json"]
+    for path in left[:2]:
+        (path / "previous").mkdir(parents=True)
+        (path / "previous" / "begin.npy").write_bytes(b"x" * 1000)
+    left[2].write_text("{\"half")
+    other = tmp_path / ".other.k1ll3d_w.tmp"  # another output's: not this run's to remove
+    other.mkdir()
+    assert main(build_args(native_six, tmp_path / "db")) == 0
+    assert main(uniform_args(native_six, tmp_path / "out.json")) == 0
+    assert hidden(tmp_path) == [other.name]
