@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import string
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -37,96 +36,17 @@ from rdd.cli.options import (
     force_arg,
     reader_help,
 )
+from rdd.core.confidence import REVIEW_BELOW
 from rdd.data.episode import Episode
 from rdd.errors import InputError, UsageError
-
-OUTPUT_VERSION = 1
-# Chosen by measurement (docs/review.md): flags most episodes with a doubtful segment, few others.
-REVIEW_BELOW = 0.5
-FALLBACK_FIELDS = ("task", "episode", "index", "count", "start", "end")
-
-
-def check_template(template: str) -> None:
-    """Refuse a ``--fallback-instruction`` field that is not a plain name of FALLBACK_FIELDS: attribute
-    or index access (``{task.__class__}``), conversions (``!r``) and nested fields would let a template
-    write Python internals into a dataset."""
-    fields = ", ".join("{" + f + "}" for f in FALLBACK_FIELDS)
-    try:
-        parsed = list(string.Formatter().parse(template))
-    except ValueError as exc:
-        raise UsageError(f"--fallback-instruction {template!r}: {exc}; fields: {fields}") from exc
-    for _text, name, spec, conversion in parsed:
-        if name is None:
-            continue
-        if name not in FALLBACK_FIELDS or conversion or "{" in (spec or ""):
-            shown = "{" + name + (f"!{conversion}" if conversion else "") + (f":{spec}" if spec else "") + "}"
-            raise UsageError(f"--fallback-instruction {template!r}: field {shown} is not allowed; fields are the plain "
-                           f"names {fields} (no attribute or index access, no !r/!s/!a, no nested fields)")
-
-
-def fallback_instruction(template: str, episode: Episode, index: int, count: int, segment) -> str:
-    """``--fallback-instruction`` filled in for one segment (fields: FALLBACK_FIELDS)."""
-    check_template(template)
-    try:
-        return template.format(task=episode.goal or episode.task, episode=episode.name, index=index + 1,
-                               count=count, start=int(segment[0]), end=int(segment[1]))
-    except (KeyError, IndexError, ValueError) as exc:
-        raise UsageError(f"--fallback-instruction {template!r}: {exc!r}; fields: "
-                       + ", ".join("{" + f + "}" for f in FALLBACK_FIELDS)) from exc
-
-
-def episode_record(episode: Episode, result) -> dict[str, Any]:
-    """One episode's entry in the ``decompose`` output."""
-    from rdd.segments import validate_segments
-
-    segments = validate_segments(result.segments, episode.num_frames)
-    instructions = getattr(result, "instructions", None)
-    if instructions is None and result.neighbours is not None:
-        instructions = [n.get("instruction") for n in result.neighbours]
-    return {
-        "episode": episode.name,
-        "num_frames": episode.num_frames,
-        "segments": [[s, e] for s, e in segments],
-        "keyframes": [e - 1 for _, e in segments],
-        "scores": None if result.scores is None else [float(x) for x in result.scores],
-        "instructions": None if instructions is None else ["" if t is None else str(t) for t in instructions],
-        "instruction_sources": None,
-        "novelty": None if result.novelty is None else float(result.novelty),
-        **confidence_fields(result),
-    }
-
-
-def confidence_fields(result) -> dict[str, Any]:
-    """``confidence`` and ``neighbours`` (the matched entry: episode, segment, label) per segment, for
-    a decomposer that gives them (rdd); none otherwise, so other outputs keep their bytes."""
-    if result.confidence is None:
-        return {}
-    return {"confidence": [round(float(c), 4) for c in result.confidence],
-            "neighbours": None if result.neighbours is None else [
-                {"entry": n["entry"], "episode": n["episode"], "segment": [n["start"], n["end"]],
-                 "label": n["instruction"] or None, "distance": round(float(n["distance"]), 6)}
-                for n in result.neighbours]}
-
-
-def fill_instructions(record: dict[str, Any], episode: Episode, labeler=None, fallback: str | None = None) -> None:
-    """Give every segment without an instruction the labeler's, else the fallback's (recording which)."""
-    if labeler is None and fallback is None:
-        return
-    segments = [tuple(s) for s in record["segments"]]
-    given = record["instructions"] or [""] * len(segments)
-    sources = ["decomposer" if t and t.strip() else None for t in given]
-    texts = list(given)
-    missing = [j for j, src in enumerate(sources) if src is None]
-    if labeler is not None and missing:
-        for j, text in zip(missing, labeler.label_all(episode, [segments[j] for j in missing]), strict=True):
-            if text and text.strip():
-                texts[j], sources[j] = text, "labeler"
-    if fallback is not None:
-        for j, src in enumerate(sources):
-            if src is None:
-                texts[j] = fallback_instruction(fallback, episode, j, len(segments), segments[j])
-                sources[j] = "fallback"
-    record["instructions"], record["instruction_sources"] = texts, sources
+from rdd.records import (
+    FALLBACK_FIELDS,
+    OUTPUT_VERSION,
+    episode_record,
+    fallback_instruction,
+    fill_instructions,
+    lerobot_subtasks,
+)
 
 
 def make_labeler(args: argparse.Namespace):
@@ -180,25 +100,6 @@ def _option_labeler(name: str, options: dict[str, Any]):
         hint = " (e.g. --labeler-option base_url=http://127.0.0.1:8000/v1 --labeler-option model=NAME)" \
             if name == "vlm" else ""
         raise UsageError(f"--labeler {name}: {exc}{hint}") from exc
-
-
-def lerobot_subtasks(episodes: Sequence[Episode], records: Sequence[dict[str, Any]], decomposer: str,
-                     ) -> dict[int, tuple[list, list[str]]]:
-    """Episode index -> (segments, instructions) for the LeRobot writer; every segment needs an instruction."""
-    out = {}
-    for ep, rec in zip(episodes, records, strict=True):
-        instr = rec["instructions"]
-        empty = [j for j, t in enumerate(instr or [None] * len(rec["segments"])) if not t or not str(t).strip()]
-        if empty:
-            raise UsageError(
-                f"--write-lerobot: decomposer {decomposer} gives no instruction for segments {empty} of episode "
-                f"{ep.name!r} (rdd takes them from its database's entries: build it from annotated episodes); "
-                "pass --labeler signals (what the robot's hand and joint signals show), "
-                "--labeler retrieval --label-db DB (a database with instructions) or "
-                "--fallback-instruction TEMPLATE, e.g. '{task} (step {index} of {count})'"
-            )
-        out[int(ep.meta["episode_index"])] = ([tuple(s) for s in rec["segments"]], list(instr))
-    return out
 
 
 def _components(args: argparse.Namespace, first: Episode):

@@ -11,6 +11,7 @@ from typing import Any
 from rdd.cli.common import check_output, log, write_json_atomic
 from rdd.cli.options import force_arg
 from rdd.errors import UsageError
+from rdd.records import read_segments_file
 
 # What each printed column is (rdd.metrics), for ``evaluate --help``.
 COLUMNS = """columns (one row per method and episode, then the method's MEAN over its episodes):
@@ -21,42 +22,6 @@ COLUMNS = """columns (one row per method and episode, then the method's MEAN ove
   bP bR bF1 boundary precision, recall and F1: cuts (segment starts after frame 0) matched one to
             one, a predicted cut with a ground-truth cut at most --tolerance frames away
   #seg      predicted segments"""
-
-
-def read_segments_file(path: str | Path) -> dict[str, dict[str, Any]]:
-    """Episodes of a ``decompose`` output file by name."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise UsageError(f"{path}: no such file") from exc
-    except json.JSONDecodeError as exc:
-        raise UsageError(f"{path}: invalid JSON ({exc})") from exc
-    if not isinstance(data, dict) or not isinstance(data.get("episodes"), list):
-        raise UsageError(f"{path}: expected an object with an 'episodes' list (a decompose output)")
-    out = {}
-    for i, rec in enumerate(data["episodes"]):
-        if not isinstance(rec, dict) or "episode" not in rec or "segments" not in rec:
-            raise UsageError(f"{path}: episodes[{i}] lacks 'episode' or 'segments'")
-        _check_numbers(path, i, rec)
-        out[str(rec["episode"])] = rec
-    return out
-
-
-def _check_numbers(path: Path, i: int, rec: dict[str, Any]) -> None:
-    """Segments (and num_frames) as JSON whole numbers: ``"12"`` or ``12.5`` is an error, never coerced."""
-    def whole(v: Any) -> bool:
-        return isinstance(v, int) and not isinstance(v, bool)
-
-    where = f"{path}: episodes[{i}] ({rec['episode']!r})"
-    if "num_frames" in rec and rec["num_frames"] is not None and not whole(rec["num_frames"]):
-        raise UsageError(f"{where} field 'num_frames': expected a whole number, got {rec['num_frames']!r}")
-    segments = rec["segments"]
-    if not isinstance(segments, list):
-        raise UsageError(f"{where} field 'segments': expected a list of [start, end] pairs, got {segments!r}")
-    for j, seg in enumerate(segments):
-        if not (isinstance(seg, list) and len(seg) == 2 and all(whole(v) for v in seg)):
-            raise UsageError(f"{where} field 'segments'[{j}]: expected [start, end] as two whole numbers, got {seg!r}")
 
 
 def pred_item(item: str) -> tuple[str, str]:

@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 
 from rdd.cli.common import check_output, load_data
-from rdd.cli.evaluate import pred_inputs, pred_methods, read_segments_file
+from rdd.cli.evaluate import pred_inputs, pred_methods
 from rdd.cli.options import data_args, force_arg, with_reader_help
 from rdd.errors import UsageError
+from rdd.records import read_segments_file
 
 
 def cmd_plot(args: argparse.Namespace) -> int:

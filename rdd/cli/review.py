@@ -13,8 +13,8 @@ import webbrowser
 from pathlib import Path
 
 from rdd.cli.common import check_output, parse_options
-from rdd.cli.decompose import REVIEW_BELOW
 from rdd.cli.options import force_arg
+from rdd.core.confidence import REVIEW_BELOW
 from rdd.data.load import formats
 from rdd.errors import UsageError
 

@@ -34,6 +34,10 @@ from rdd.core.calibrate import DEFAULT_ALPHAS, partitions
 from rdd.database.model import SubtaskDatabase
 from rdd.metrics import segment_iou
 
+# Episodes with a segment below this confidence are the ones to look at. Chosen by measurement
+# (docs/review.md): it flags most episodes with a doubtful segment, few others.
+REVIEW_BELOW = 0.5
+
 REFERENCE_SAMPLE = 2000
 NEAR_BEST = 5
 # Rows of the (sample, N) cosine matrix computed at once: bounds memory on large databases.

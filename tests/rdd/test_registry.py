@@ -124,6 +124,8 @@ def test_a_new_decomposer_is_one_module(tmp_path, monkeypatch):
     # In this process: the plugin module joins the kind when the registry searches it.
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setenv("RDD_PLUGINS", "my_halves")
+    # The registry as it was comes back after the test: the plugin must not stay registered.
+    monkeypatch.setattr(registry, "_TABLES", {kind: dict(table) for kind, table in registry._TABLES.items()})
     monkeypatch.setattr(registry, "_SEARCHED", set())
     assert "halves" in registry.available("decomposer")
     assert registry.target("decomposer", "halves") == "my_halves.Halves"
