@@ -130,3 +130,38 @@ def test_a_damaged_resume_part_is_redone(native_six, tmp_path, caplog):
     warned = [r.getMessage() for r in caplog.records if "cannot be read back" in r.getMessage()]
     assert len(warned) == 2 and str(parts[0]) in " ".join(warned), warned
     assert out.read_bytes() == (tmp_path / "ref.json").read_bytes()
+
+
+def test_a_damaged_staged_file_of_the_lerobot_copy_is_written_again(lerobot_factory, tmp_path, monkeypatch, caplog):
+    import rdd.data.lerobot.write as writer
+    from rdd.cli import main
+
+    src = lerobot_factory("v3.0", lengths=(30, 36, 24, 20))  # data files: episodes 0-1 and 2-3
+
+    def argv(name: str) -> list[str]:
+        return ["decompose", "--format", "lerobot", "--data", str(src), "--decomposer", "uniform",
+                "--option", "n_segments=3", "--fallback-instruction", "{task} ({index}/{count})",
+                "--write-lerobot", str(tmp_path / name)]
+
+    assert main(argv("ref")) == 0
+    original = writer._rewrite_data_file
+    done: list[str] = []
+
+    def stop_after_one(source, *args, **kwargs):
+        if done:
+            raise KeyboardInterrupt
+        done.append(source.name)
+        return original(source, *args, **kwargs)
+
+    monkeypatch.setattr(writer, "_rewrite_data_file", stop_after_one)
+    assert main(argv("copy")) == 130
+    monkeypatch.undo()
+    (staged,) = (tmp_path / ".copy.parts").rglob(done[0])
+    staged.write_bytes(staged.read_bytes()[:200])  # truncated by a disk fault
+    with caplog.at_level(logging.WARNING):
+        assert main(argv("copy")) == 0
+    assert any(f"staged file {staged} of the LeRobot copy cannot be read back" in r.getMessage()
+               for r in caplog.records), caplog.text
+    tree = {p.relative_to(tmp_path / "copy"): p.read_bytes() for p in (tmp_path / "copy").rglob("*") if p.is_file()}
+    ref = {p.relative_to(tmp_path / "ref"): p.read_bytes() for p in (tmp_path / "ref").rglob("*") if p.is_file()}
+    assert tree == ref

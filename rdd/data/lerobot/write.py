@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import tempfile
 from collections.abc import Iterator, Mapping, Sequence
@@ -44,6 +45,8 @@ from rdd.data.lerobot.convert import convert_to_v30, link_or_copy
 from rdd.data.lerobot.dataset import LeRobotDataset, column, need
 from rdd.data.lerobot.language import LANGUAGE_EVENTS, LANGUAGE_PERSISTENT
 from rdd.segments import Segment, validate_segments
+
+log = logging.getLogger(__name__)
 
 LANGUAGE_FEATURE = {"dtype": "language", "shape": [1], "names": None}
 SUBTASK_STYLE = "subtask"
@@ -175,6 +178,19 @@ def _episodes_in(path: Path, file_episode: int | None) -> list[int]:
     return sorted(set(column(table, "episode_index", path).astype(np.int64).tolist()))
 
 
+def _staged_episodes(dst: Path, file_episode: int | None) -> list[int] | None:
+    """The episodes of a data file an earlier run wrote into the staging folder; None when there is
+    none, or it cannot be read back (damaged: a warning, and it is written again)."""
+    if not dst.is_file():
+        return None
+    try:
+        return _episodes_in(dst, file_episode)
+    except Exception as exc:  # noqa: BLE001 - any damage: the file is rewritten, never published
+        log.warning("staged file %s of the LeRobot copy cannot be read back (%s); writing it again", dst,
+                    str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        return None
+
+
 @contextlib.contextmanager
 def _resumable_dir(staging: Path, out: Path) -> Iterator[Path]:
     """Yield ``staging`` (kept across runs, its files each written whole); on success rename it to ``out``."""
@@ -272,10 +288,10 @@ def write_subtasks(
                 rel = src.relative_to(src_root)
                 dst = tmp / rel
                 if src.resolve() in data_files:
-                    if dst.is_file():  # written by an earlier run into the same staging folder
-                        written.update(_episodes_in(dst, data_files[src.resolve()]))
-                    else:
-                        written.update(_rewrite_data_file(src, dst, rows, data_files[src.resolve()]))
+                    held = _staged_episodes(dst, data_files[src.resolve()])
+                    if held is None:
+                        held = _rewrite_data_file(src, dst, rows, data_files[src.resolve()])
+                    written.update(held)
                 elif dst.is_file():
                     continue
                 elif rel == Path("meta/info.json"):
