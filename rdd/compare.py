@@ -57,7 +57,7 @@ def format_table(result: Mapping[str, Any], per_episode: bool = True) -> str:
     """A plain-text table: one row per method (mean), optionally one per method and episode."""
     rows = []
     for label, m in result["methods"].items():
-        if per_episode and len(m["episodes"]) > 1:
+        if per_episode:  # also for one episode: the row names it, as `evaluate --help` promises
             rows += [(label, name, e) for name, e in m["episodes"].items()]
         rows.append((label, f"MEAN ({m['num_episodes']} ep)", m["mean"]))
     lw = max(6, *(len(r[0]) for r in rows))

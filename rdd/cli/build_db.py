@@ -140,7 +140,9 @@ def _build(args: argparse.Namespace, out: Path, workers: int) -> int:
     if args.no_calibrate:
         pass
     elif len(set(names)) < 2:
-        print(f"warning: calibration skipped: --data {args.data} has one episode, nothing to leave out",
+        # the database's episode count, not the dataset's: --include/--exclude or the reader's options
+        # may have chosen one episode of many
+        print(f"warning: calibration skipped: the database holds one episode ({names[0]}), nothing to leave out",
               file=sys.stderr)
     else:
         try:

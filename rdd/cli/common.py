@@ -6,7 +6,7 @@ import argparse
 import json
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -143,9 +143,9 @@ def full_disk(args: argparse.Namespace, exc: OSError) -> str:
     return f"no space left on device: {where}; free space there and run again"
 
 
-def load_data(args: argparse.Namespace) -> list[Episode]:
-    """Episodes at ``--data`` in ``--format``, filtered by ``--include`` / ``--exclude`` before any
-    episode is read, so an excluded episode's files are never opened."""
+def load_data(args: argparse.Namespace, only: Collection[str] | None = None) -> list[Episode]:
+    """Episodes at ``--data`` in ``--format``, filtered by ``--include`` / ``--exclude`` (and, when given,
+    to the names in ``only``) before any episode is read, so an excluded episode's files are never opened."""
     from rdd.data.load import episode_names, load_episodes
 
     if not Path(args.data).exists():
@@ -158,7 +158,9 @@ def load_data(args: argparse.Namespace) -> list[Episode]:
             if unknown:
                 raise UsageError(f"{flag}: no episode named {unknown} in {args.data}; have {names}")
         chosen = [n for n in names if (not args.include or n in set(args.include))
-                  and n not in set(args.exclude or ())]
+                  and n not in set(args.exclude or ()) and (only is None or n in only)]
+        if not chosen and only is not None:
+            return []  # the caller says which of its episodes are missing
         if not chosen:
             raise UsageError(f"--data {args.data}: no episodes left after --include/--exclude")
         episodes = load_episodes(args.format, args.data, names=set(chosen), **options)

@@ -27,7 +27,9 @@ def cmd_plot(args: argparse.Namespace) -> int:
     items = [f"{lab}={p}" for lab, p in zip(labels, args.pred, strict=True)] if labels else args.pred
     methods = pred_methods(items)
     rows = {label: {n: r["segments"] for n, r in recs.items()} for label, recs in methods.items()}
-    episodes = {e.name: e for e in load_data(args)}
+    # only the episodes drawn are read: another episode's files are never opened (nor its warnings printed)
+    wanted = set(args.episode or ()) or {n for r in rows.values() for n in r}
+    episodes = {e.name: e for e in load_data(args, only=wanted)}
     gt = {n: r["segments"] for n, r in read_segments_file(args.gt).items()} if args.gt else {}
     names = args.episode or [n for n in episodes if any(n in r for r in rows.values())]
     if not names:

@@ -96,13 +96,21 @@ def cmd_serve(args: argparse.Namespace) -> int:
           f"worker(s); database {args.db}, encoder {service.encoder_name}, views {', '.join(service.views)})",
           file=sys.stderr, flush=True)
     if args.workers == 1:
-        uvicorn.run(app, host=args.host, port=args.port, log_level=level)
-        return 0
-    del app, service  # each worker loads its own
-    os.environ[ARGS_ENV] = json.dumps(_settings(args))
-    uvicorn.run("rdd.cli.serve:worker_app", factory=True, host=args.host, port=args.port,
-                workers=args.workers, log_level=level)
-    return 0
+        uvicorn.run(app, host=args.host, port=args.port, log_level=level, access_log=False)
+    else:
+        del app, service  # each worker loads its own
+        os.environ[ARGS_ENV] = json.dumps(_settings(args))
+        uvicorn.run("rdd.cli.serve:worker_app", factory=True, host=args.host, port=args.port,
+                    workers=args.workers, log_level=level, access_log=False)
+    _exit_now()
+
+
+def _exit_now() -> None:
+    """End the process once uvicorn has closed its socket and answered its last request: tearing the
+    interpreter down with torch loaded takes 1.5-2 s more, and the server has nothing left to write."""
+    print("server stopped", file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    os._exit(0)
 
 
 def add_parser(sub) -> None:

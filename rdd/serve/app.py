@@ -9,7 +9,10 @@ pool; the service lets one request compute at a time per worker.
 
 # No `from __future__ import annotations`: FastAPI reads the handlers' annotations at run time,
 # and the request model is local to create_app.
+import logging
 import os
+import sys
+import time
 from typing import Any
 
 from rdd.serve.body_limit import DEFAULT_MAX_BODY_BYTES, BodyLimit
@@ -37,10 +40,27 @@ def _field(loc: tuple) -> str:
     return out
 
 
+# One line per request on stderr, in every worker process (uvicorn's own access log is off: it names
+# neither the method asked for nor the frames, and shows only with -v).
+REQUEST_LOG = logging.getLogger("rdd.serve.requests")
+
+
+def _request_log() -> logging.Logger:
+    """:data:`REQUEST_LOG`, writing ``time pid client METHOD PATH status seconds [what]`` lines to stderr."""
+    if not REQUEST_LOG.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%d %H:%M:%S"))
+        REQUEST_LOG.addHandler(handler)
+        REQUEST_LOG.setLevel(logging.INFO)
+        REQUEST_LOG.propagate = False
+    return REQUEST_LOG
+
+
 def create_app(service: DecomposeService, max_body_bytes: int = DEFAULT_MAX_BODY_BYTES):
     """A FastAPI app answering with ``service`` (loaded before, once per worker); bodies over
-    ``max_body_bytes`` answer 413."""
+    ``max_body_bytes`` answer 413; each request is logged in one line (:data:`REQUEST_LOG`)."""
     fastapi, pydantic = _fastapi()
+    requests_log = _request_log()
     from fastapi.exceptions import RequestValidationError
     from fastapi.responses import JSONResponse
 
@@ -57,6 +77,20 @@ def create_app(service: DecomposeService, max_body_bytes: int = DEFAULT_MAX_BODY
     app.add_middleware(BodyLimit, max_bytes=max_body_bytes)
     app.state.service = service
 
+    @app.middleware("http")
+    async def _log(request, call_next):
+        start = time.perf_counter()
+        status = 500
+        try:
+            response = await call_next(request)
+            status = response.status_code
+            return response
+        finally:
+            what = getattr(request.state, "what", "")
+            client = request.client.host if request.client else "-"
+            requests_log.info("pid %d %s %s %s %d %.3f s%s", os.getpid(), client, request.method,
+                              request.url.path, status, time.perf_counter() - start, f" ({what})" if what else "")
+
     @app.exception_handler(RequestValidationError)
     def _invalid(_request, exc: RequestValidationError) -> JSONResponse:
         first = exc.errors()[0]
@@ -68,8 +102,11 @@ def create_app(service: DecomposeService, max_body_bytes: int = DEFAULT_MAX_BODY
         return JSONResponse({"error": str(exc)}, status_code=exc.status)
 
     @app.post("/decompose")
-    def decompose(request: DecomposeRequest) -> dict[str, Any]:
-        return service.decompose(request.paths, request.method, request.preprocessor)
+    def decompose(request: DecomposeRequest, http: fastapi.Request) -> dict[str, Any]:
+        http.state.what = f"{request.method}, {len(request.paths)} frames"
+        answer = service.decompose(request.paths, request.method, request.preprocessor)
+        http.state.what += f", {len(answer['segments'])} segments"
+        return answer
 
     @app.get("/config")
     def config() -> dict[str, Any]:

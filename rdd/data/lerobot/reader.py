@@ -299,7 +299,9 @@ def _wanted(ds: LeRobotDataset, episodes: Sequence[int] | None, skip_missing: bo
         present = set(ds.present_episodes())
         missing = [e for e in wanted if e not in present]
         if missing:
-            log.warning("%s: skipping %d listed episodes whose files are missing", ds.root, len(missing))
+            # skip_missing asked for exactly this, and the command's own summary counts the episodes it
+            # read: a detail shown with -v, not a warning repeated by every command on a partial copy
+            log.info("%s: skipping %d listed episodes whose files are missing", ds.root, len(missing))
         wanted = [e for e in wanted if e in present]
         if not wanted:
             raise FileNotFoundError(f"{ds.root}: none of the requested episodes is present")

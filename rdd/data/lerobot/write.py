@@ -212,6 +212,28 @@ def _inside(path: Path, folder: Path) -> bool:
         return False
 
 
+V21_EPISODE_LISTS = (Path("meta/episodes.jsonl"), Path("meta/episodes_stats.jsonl"))
+
+
+def _v21_totals(ds: LeRobotDataset, present: set[int]) -> dict[str, Any]:
+    """The info.json counts of a v2.1 copy holding only the ``present`` episodes (none when it holds all)."""
+    if ds.version != "v2.1" or len(present) == len(ds.episodes):
+        return {}
+    out: dict[str, Any] = {"total_episodes": len(present),
+                           "total_frames": sum(int(ds.episodes[e].get("length", 0)) for e in present),
+                           "total_videos": len(present) * len(ds.video_keys)}
+    if present and max(present) - min(present) + 1 == len(present):  # a contiguous range: LeRobot's split form
+        out["splits"] = {**dict(ds.info.get("splits") or {}), "train": f"{min(present)}:{max(present) + 1}"}
+    return out
+
+
+def _present_lines(path: Path, present: set[int]) -> str:
+    """The JSON lines of ``path`` (episodes.jsonl, episodes_stats.jsonl) whose episode is in ``present``."""
+    keep = [line for line in path.read_text().splitlines()
+            if line.strip() and int(json.loads(line)["episode_index"]) in present]
+    return "".join(line + "\n" for line in keep)
+
+
 def write_subtasks(
     source: str | Path,
     out: str | Path,
@@ -279,6 +301,8 @@ def write_subtasks(
             raise ValueError(f"{path}: no column 'timestamp' (sub-task rows are stamped with frame timestamps)")
         ts = column(table, "timestamp", path).astype(np.float32)
         rows[int(ep)] = subtask_rows(segments, instructions, ts, f"{path} (episode {ep})")
+    # The copy of a partial v2.1 source lists the episodes it holds (as convert_to_v30 does for v3.0).
+    present = set(ds.present_episodes()) if ds.version == "v2.1" else set(ds.episodes)
     written: set[int] = set()
     building = atomic_dir(out) if staging is None else _resumable_dir(Path(staging), out)
     with building as tmp:
@@ -295,10 +319,12 @@ def write_subtasks(
                 elif dst.is_file():
                     continue
                 elif rel == Path("meta/info.json"):
-                    info = dict(ds.info)
+                    info = {**dict(ds.info), **_v21_totals(ds, present)}
                     info["features"] = {**ds.info["features"], LANGUAGE_PERSISTENT: dict(LANGUAGE_FEATURE),
                                         LANGUAGE_EVENTS: dict(LANGUAGE_FEATURE)}
                     write_text_atomic(dst, json.dumps(info, indent=4, ensure_ascii=False) + "\n")
+                elif ds.version == "v2.1" and rel in V21_EPISODE_LISTS and len(present) < len(ds.episodes):
+                    write_text_atomic(dst, _present_lines(src, present))
                 else:
                     link_or_copy(src, dst, link)
         lost = sorted(set(rows) - written)
