@@ -5,19 +5,16 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.singleton import Singleton
 from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job, setup_globals
+from hydra.plugins.launcher import Launcher
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from hydra_plugins.rdd_ray_launcher import INSTALL_LINE
-
-if TYPE_CHECKING:
-    from hydra_plugins.rdd_ray_launcher.ray_launcher import RayLauncher
-
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +47,7 @@ def _run_on_worker(idx: int, sweep_config: DictConfig, hydra_context: HydraConte
                    job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir")
 
 
-def launch(launcher: RayLauncher, job_overrides: Sequence[Sequence[str]],
+def launch(launcher: Launcher, job_overrides: Sequence[Sequence[str]],
            initial_job_idx: int) -> list[JobReturn]:
     """Start (or join) Ray, submit every job, wait for all of them; a failed job fails the sweep."""
     ray = _ray()
