@@ -15,6 +15,7 @@ from typing import Any
 
 from rdd.data.episode import Episode
 from rdd.errors import UsageError
+from rdd.labelers.base import label_all
 from rdd.segments import validate_segments
 
 OUTPUT_VERSION = 1  # of the decompose output (its config's "version")
@@ -91,7 +92,7 @@ def fill_instructions(record: dict[str, Any], episode: Episode, labeler=None, fa
     texts = list(given)
     missing = [j for j, src in enumerate(sources) if src is None]
     if labeler is not None and missing:
-        for j, text in zip(missing, labeler.label_all(episode, [segments[j] for j in missing]), strict=True):
+        for j, text in zip(missing, label_all(labeler, episode, [segments[j] for j in missing]), strict=True):
             if text and text.strip():
                 texts[j], sources[j] = text, "labeler"
     if fallback is not None:

@@ -48,4 +48,5 @@ def task_sources(name: str) -> list[str]:
             for m in mods:
                 if m.startswith("envs.tasks.") and (here / f"{m.rsplit('.', 1)[1]}.py").is_file():
                     todo.append(here / f"{m.rsplit('.', 1)[1]}.py")
-    return sorted(str(f.relative_to(root)) for f in seen)
+    # a task from outside the checkout (RDD_PLUGINS, docs/extending.md) is keyed by its absolute path
+    return sorted(str(f.relative_to(root)) if root in f.parents else str(f) for f in seen)

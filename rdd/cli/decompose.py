@@ -47,6 +47,7 @@ from rdd.records import (
     fill_instructions,
     lerobot_subtasks,
 )
+from rdd.registry import available
 
 
 def make_labeler(args: argparse.Namespace):
@@ -63,7 +64,7 @@ def make_labeler(args: argparse.Namespace):
         if options:
             raise UsageError("--labeler-option needs --labeler signals or --labeler vlm")
         return None
-    if name in ("signals", "vlm"):
+    if name != "retrieval":  # signals, vlm and any registered labeler: built from its options alone
         return _option_labeler(name, options)
     if options:
         raise UsageError("--labeler retrieval takes no --labeler-option (its index is the database's)")
@@ -85,7 +86,7 @@ def make_labeler(args: argparse.Namespace):
 
 
 def _option_labeler(name: str, options: dict[str, Any]):
-    """The signals or vlm labeler built from ``--labeler-option`` pairs; a bad one is a one-line error."""
+    """A labeler (signals, vlm, a plugin's) built from ``--labeler-option`` pairs; a bad one is a one-line error."""
     from rdd.registry import check_option_names, component
 
     cls = component("labeler", name)
@@ -226,11 +227,12 @@ def add_parser(sub) -> None:
     p.add_argument("--lerobot-version", choices=("3.0", "2.1"), default="3.0",
                    help="layout of the --write-lerobot copy (default 3.0, also from a v2.1 source, as current "
                         "LeRobot reads it; 2.1 keeps a v2.1 source's layout)")
-    p.add_argument("--labeler", choices=("retrieval", "signals", "vlm"),
+    p.add_argument("--labeler", choices=tuple(available("labeler")),
                    help="name segments the decomposer gives no instruction: retrieval = the instruction of "
                         "the nearest entry of --label-db; signals = what the robot's hand and joint signals "
                         "show (default with --write-lerobot unless --fallback-instruction is given); vlm = a "
-                        "vision-language model's instruction for a few frames of each segment")
+                        "vision-language model's instruction for a few frames of each segment; any other "
+                        "registered labeler (docs/extending.md) is built from its --labeler-option pairs")
     p.add_argument("--labeler-option", action="append", metavar="KEY=VALUE",
                    help="labeler keyword (signals, vlm), e.g. base_url=http://127.0.0.1:8000/v1, model=NAME, "
                         "view=top, frames=4 (vlm; conf/labeler/vlm.yaml lists them); unknown keys are errors")

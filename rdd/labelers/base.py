@@ -10,6 +10,7 @@ with one model.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Protocol
 
 from rdd.data.episode import Episode
@@ -21,3 +22,12 @@ class Labeler(Protocol):
     def label(self, episode: Episode, segment: tuple[int, int]) -> str:
         """Instruction for frames ``[start, end)``."""
         ...
+
+
+def label_all(labeler: Labeler, episode: Episode, segments: Sequence[tuple[int, int]]) -> list[str]:
+    """Instructions for ``segments``: the labeler's own ``label_all`` (one batched call, e.g. a VLM's)
+    when it has one, else its ``label`` per segment (all the protocol asks of a labeler)."""
+    batched = getattr(labeler, "label_all", None)
+    if batched is not None:
+        return list(batched(episode, list(segments)))
+    return [labeler.label(episode, tuple(s)) for s in segments]
