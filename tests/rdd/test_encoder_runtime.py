@@ -138,7 +138,7 @@ def test_forced_torch_never_exports(cache_root, monkeypatch):
     monkeypatch.setenv("RDD_CACHE_DIR", str(cache_root / "elsewhere"))
     enc = load_encoder("effnet_lite0", runtime="torch", num_threads=1)
     assert enc.encode(frames(2)).shape == (2, 1280) and enc.active_runtime == "torch"
-    assert not (cache_root / "elsewhere").exists()
+    assert not (cache_root / "elsewhere" / "onnx").exists()  # (its weights id is recorded, not exported)
 
 
 def _runtime_warnings(caplog) -> list[str]:
@@ -201,3 +201,23 @@ def test_bad_runtime_or_device_is_named(name):
         load_encoder(name, runtime="tensorrt")
     with pytest.raises(ValueError, match="option device must be one of"):
         load_encoder(name, device="tpu")
+
+
+def test_known_weights_give_the_identity_without_torch(tmp_path):
+    """Weights hashed once are known by their file's sha256: a later process gets the same weights id
+    (the cache keys) without importing torch or building the network, which it loads on first encode."""
+    import subprocess
+
+    code = ("import sys; from rdd.encoders import load_encoder; e = load_encoder('effnet_lite0'); "
+            "print(e.weights_id, 'torch' in sys.modules, e._model is None)")
+    env = {**__import__("os").environ, "RDD_CACHE_DIR": str(tmp_path)}
+    first = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    again = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    wid, _, _ = first.stdout.split()
+    assert again.stdout.split() == [wid, "False", "True"]
+    eager = load_encoder("effnet_lite0")
+    assert eager.weights_id == wid
+    for record in (tmp_path / "weights").iterdir():  # a damaged record: built and hashed again
+        record.write_text("{")
+    damaged = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert damaged.stdout.split() == [wid, "True", "False"]
