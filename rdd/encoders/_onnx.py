@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rdd.atomic import read_verified, write_bytes_atomic, write_sha256
+from rdd.atomic import read_verified, write_bytes_atomic, write_json_atomic, write_sha256
 
 if TYPE_CHECKING:
     import torch
@@ -72,14 +72,18 @@ def _source_files(model: torch.nn.Module, forward: Any) -> list[str]:
 
 def code_hash(model: torch.nn.Module, forward: Any) -> str:
     """SHA-256 of the source files defining ``model``'s modules and ``forward`` (names and bytes)."""
+    return files_hash(_source_files(model, forward))
+
+
+def files_hash(paths: Sequence[str]) -> str:
+    """SHA-256 of the names and bytes of ``paths``, in the given order."""
     h = hashlib.sha256()
-    for path in _source_files(model, forward):
+    for path in paths:
         h.update(Path(path).name.encode() + b"\0" + Path(path).read_bytes() + b"\0")
     return h.hexdigest()
 
 
-def export_key(encoder, shape: Sequence[int]) -> dict:
-    """What determines the exported graph of ``encoder`` for inputs of ``shape`` (C, H, W)."""
+def _key_without_code(encoder, shape: Sequence[int]) -> dict:
     import torch
 
     try:
@@ -90,12 +94,45 @@ def export_key(encoder, shape: Sequence[int]) -> dict:
         "format": EXPORT_FORMAT,
         "encoder": encoder.name,
         "weights_id": encoder.weights_id,
-        "code": code_hash(encoder.model, encoder._forward),
         "input": [int(s) for s in shape],
         "torch": torch.__version__,
         "onnx": onnx_version,
         "opset": OPSET,
     }
+
+
+def export_key(encoder, shape: Sequence[int]) -> dict:
+    """What determines the exported graph of ``encoder`` for inputs of ``shape`` (C, H, W)."""
+    return {**_key_without_code(encoder, shape), "code": code_hash(encoder.model, encoder._forward)}
+
+
+def _record_path(root: Path, partial: dict) -> Path:
+    digest = hashlib.sha256(json.dumps(partial, sort_keys=True).encode()).hexdigest()
+    return root / f"{partial['encoder']}-{digest[:32]}.key.json"
+
+
+def known_key(encoder, shape: Sequence[int], root: Path) -> dict | None:
+    """``export_key`` without building the model: from the record written beside an earlier export,
+    valid while the source files it names still hash to its code hash (None otherwise)."""
+    partial = _key_without_code(encoder, shape)
+    try:
+        record = json.loads(_record_path(root, partial).read_text())
+        sources, code = list(record["sources"]), record["code"]
+        if files_hash(sources) == code:
+            return {**partial, "code": code}
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return None
+
+
+def remember_key(encoder, key: dict, root: Path) -> None:
+    """Record which source files make ``key``'s code hash, for :func:`known_key` (skipped if unwritable)."""
+    partial = {k: v for k, v in key.items() if k != "code"}
+    try:
+        write_json_atomic(_record_path(root, partial),
+                          {"sources": _source_files(encoder.model, encoder._forward), "code": key["code"]})
+    except OSError as exc:
+        log.debug("could not record the ONNX key of %s: %s", encoder.name, exc)
 
 
 def export_path(root: Path, key: dict) -> Path:
@@ -190,7 +227,11 @@ class OnnxRunner:
         shape = tuple(int(s) for s in x.shape[1:])
         if shape in self._sessions:
             return self._sessions[shape]
-        path = export_path(self.root, export_key(self.encoder, shape))
+        # A key recorded beside an earlier export spares building the model (its source files are
+        # hashed from the record's list); without one the model is built to list them.
+        known = known_key(self.encoder, shape, self.root)
+        key = known or export_key(self.encoder, shape)
+        path = export_path(self.root, key)
         session = None
         if path.is_file():
             try:
@@ -199,6 +240,8 @@ class OnnxRunner:
                 log.warning("ONNX file %s is unreadable (%s); exporting again", path, str(exc).splitlines()[0])
         if session is None:
             session = self._export(x, path)
+        if known is None:
+            remember_key(self.encoder, key, self.root)
         self._sessions[shape] = session
         return session
 

@@ -221,3 +221,18 @@ def test_known_weights_give_the_identity_without_torch(tmp_path):
         record.write_text("{")
     damaged = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert damaged.stdout.split() == [wid, "True", "False"]
+
+
+def test_a_cached_export_runs_without_building_the_model(tmp_path):
+    """Once exported (and its key recorded), a later process encodes in ONNX Runtime from the cached
+    file without building the torch model, with the same features."""
+    import subprocess
+
+    code = ("import sys, numpy as np; from rdd.encoders import load_encoder; e = load_encoder('effnet_lite0'); "
+            "x = np.random.default_rng(0).integers(0, 255, (2, 64, 80, 3), dtype=np.uint8); "
+            "f = e.encode(x); print(e.active_runtime, e._model is None, repr(float(f.sum())))")
+    env = {**__import__("os").environ, "RDD_CACHE_DIR": str(tmp_path)}
+    first = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    again = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert first.stdout.split()[:2] == ["onnx", "False"]
+    assert again.stdout.split() == ["onnx", "True", first.stdout.split()[2]]
