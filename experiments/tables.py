@@ -21,7 +21,7 @@ from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
 
-from experiments.report.plots import plot_speed, plot_success
+from experiments.report.plots import plot_miou, plot_speed, plot_success
 from experiments.report.results import RunRecord, assign_labels, load_runs
 from experiments.report.table_builders import (
     miou_table,
@@ -116,6 +116,9 @@ def write_tables(runs_dir: Path, out_dir: Path | None = None) -> tuple[str, list
         seeds = len({r.seed for r in by_exp[exp]})
         what = "mean ± std over seeds" if seeds > 1 else "one seed"
         if plot_success(by_exp[exp], png, f"{exp}: success per task ({what})"):
+            written.append(png)
+        png = out_dir / f"{exp}_miou.png"
+        if plot_miou(by_exp[exp], png, f"{exp}: decomposition mIoU against the expert ({what})"):
             written.append(png)
         png = out_dir / f"{exp}_speed.png"
         if plot_speed(by_exp[exp], png):

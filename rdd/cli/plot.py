@@ -26,11 +26,11 @@ def cmd_plot(args: argparse.Namespace) -> int:
         raise UsageError(f"--labels: {len(labels)} labels for {len(args.pred)} --pred files")
     items = [f"{lab}={p}" for lab, p in zip(labels, args.pred, strict=True)] if labels else args.pred
     methods = pred_methods(items)
-    rows = {label: {n: r["segments"] for n, r in recs.items()} for label, recs in methods.items()}
+    rows = {label: dict(recs) for label, recs in methods.items()}  # records: segments and instructions
     # only the episodes drawn are read: another episode's files are never opened (nor its warnings printed)
     wanted = set(args.episode or ()) or {n for r in rows.values() for n in r}
     episodes = {e.name: e for e in load_data(args, only=wanted)}
-    gt = {n: r["segments"] for n, r in read_segments_file(args.gt).items()} if args.gt else {}
+    gt = dict(read_segments_file(args.gt)) if args.gt else {}
     names = args.episode or [n for n in episodes if any(n in r for r in rows.values())]
     if not names:
         raise UsageError(f"--pred files share no episode with --data {args.data}")
@@ -39,8 +39,10 @@ def cmd_plot(args: argparse.Namespace) -> int:
         if name not in episodes:
             raise UsageError(f"--episode {name!r} is not in --data {args.data}")
         ep_rows = {label: r[name] for label, r in rows.items() if name in r}
-        truth = gt.get(name) or episodes[name].segments
-        panels.append((episodes[name], ep_rows, truth))
+        ep = episodes[name]
+        truth = gt.get(name) or ({"segments": ep.segments, "instructions": ep.instructions}
+                                 if ep.segments else None)
+        panels.append((ep, ep_rows, truth))
     out = plot_timelines(panels, out, view=args.view, gt_label=args.gt_label, overwrite=args.force)
     print(f"wrote {out}")
     return 0

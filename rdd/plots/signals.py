@@ -40,25 +40,37 @@ def has_signals(episode: Episode) -> bool:
     return episode.meta.get("hand_levels") is not None or bool(episode.meta.get("arm_sides"))
 
 
-def draw_signals(ax, episode: Episode, cuts: Sequence[int], label: str) -> None:
-    """Hand levels (left axis) and arm speeds (right axis, dashed) of ``episode``, the cuts of row
-    ``label`` as vertical lines."""
+def draw_signals(ax, episode: Episode, cuts: tuple[str, Sequence[int]],
+                 truth: tuple[str, Sequence[int]] | None = None) -> None:
+    """Hand levels (left axis) and arm speeds (right axis, dashed) of ``episode``; ``cuts`` (a row's
+    label and cut frames) as solid black lines, ``truth``'s as dashed red ones, as the timeline
+    above draws them. The legend sits beside the axes, where it covers no signal."""
+    from matplotlib.lines import Line2D
+
     hands, arms = episode_signals(episode)
     t = np.arange(episode.num_frames)
     for name, level in hands.items():
         ax.plot(t, level, linewidth=1.2, label=name)
-    ax.set_ylabel("hand level", fontsize=8)
+    ax.set_ylabel("hand level\n(1 = open)", fontsize=8)
     lines, names = ax.get_legend_handles_labels()
     if arms:
         right = ax.twinx()
         for name, speed in arms.items():
             right.plot(t, speed, linewidth=0.9, linestyle="--", label=name)
-        right.set_ylabel("arm speed", fontsize=8)
+        # max |joint velocity| over the arm's joints: the reader's finite differences x fps of joint
+        # angles, so radians per second when the data says its fps
+        unit = "rad/s" if episode.meta.get("fps") else "per frame"
+        right.set_ylabel(f"arm speed, fastest joint\n({unit})", fontsize=8)
+        right.set_ylim(bottom=0)
         more, more_names = right.get_legend_handles_labels()
         lines, names = lines + more, names + more_names
-    for c in cuts:
-        ax.axvline(c, color="k", linewidth=0.8, alpha=0.6)
+    drawn = [(cuts, "k", "-")] + ([(truth, "#d62728", (0, (3, 2)))] if truth else [])
+    for (label, frames), colour, style in drawn:
+        for c in frames:
+            ax.axvline(c - 0.5, color=colour, linestyle=style, linewidth=0.9, alpha=0.8)
+        lines.append(Line2D([], [], color=colour, linestyle=style))
+        names.append(f"cuts: {label}")
     ax.set_xlim(-0.5, episode.num_frames - 0.5)
-    ax.set_xlabel(f"frame (cuts: {label})")
-    ax.legend(lines, names, fontsize=7, loc="upper right", ncol=max(1, len(names)))
+    ax.set_xlabel("frame")
+    ax.legend(lines, names, fontsize=7, loc="upper left", bbox_to_anchor=(1.07, 1.0), frameon=False)
     ax.grid(axis="x", alpha=0.3)

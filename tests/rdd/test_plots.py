@@ -72,3 +72,48 @@ def test_lerobot_signals_drawn_under_the_timeline(tmp_path):
     a = plot_timelines([(plain, rows, None)], tmp_path / "a.png")
     b = plot_timelines([(with_signals, rows, None)], tmp_path / "b.png")
     assert Image.open(b).size[1] > Image.open(a).size[1]
+
+
+def test_timeline_says_instructions_miou_and_ground_truth_cuts(tmp_path, monkeypatch):
+    """What a talk needs from the figure: instructions on the segments and in a legend, each method's
+    mIoU against the ground truth, the ground truth's cuts, and thumbnails in a strip of their own
+    above the rows, never closer together than one thumbnail's width."""
+    from rdd.plots import timeline
+
+    t = 120
+    frames = np.zeros((t, 48, 64, 3), np.uint8)
+    ep = Episode(name="ep", views={"front": frames}, goal="open the drawer")
+    gt = {"segments": [(0, 40), (40, 80), (80, 120)], "instructions": ["reach the handle", "pull it", "let go"]}
+    # the first method's keyframes are the thumbnails: 30, 4 frames apart, so most must go
+    rows = {"dense": [(k, k + 4) for k in range(0, t, 4)],
+            "rdd": {"segments": [(0, 44), (44, 120)], "instructions": ["reach the handle", "pull it"]}}
+    drawn = {}
+    real = timeline._draw_thumbnails
+
+    def record(ax, episode, cam, shown, y, zoom, thumb_height):
+        drawn["shown"], drawn["y"], drawn["width"] = list(shown), y, 64 * zoom * t / (timeline.AXES_INCHES * 72)
+        return real(ax, episode, cam, shown, y, zoom, thumb_height)
+
+    monkeypatch.setattr(timeline, "_draw_thumbnails", record)
+    svg = timeline.plot_timelines([(ep, rows, gt)], tmp_path / "t.svg").read_text()
+    # mIoU of rdd: (40/44 + 40/76) / 2 = 0.718; of dense: every 4-frame segment's best IoU is 4/40
+    for text in ("reach the handle", "pull it", "let go", "ground truth cuts", "instructions",
+                 "2 segments, mIoU 0.72", "30 segments, mIoU 0.10", "keyframes"):
+        assert text in svg, text
+    rows_top = 3 - 1 + 0.3  # the ground-truth row's bar ends there; the strip starts above
+    assert drawn["y"] - 0.5 > rows_top
+    xs = [x for _, x in drawn["shown"]]
+    assert xs == sorted(xs) and all(b - a >= drawn["width"] for a, b in zip(xs, xs[1:], strict=False))
+    assert 3 <= len(xs) < 30
+    assert all(drawn["width"] / 2 - 0.5 <= x <= t - 0.5 - drawn["width"] / 2 for x in xs)
+
+
+def test_signal_panel_draws_both_cuts_and_says_its_units(tmp_path):
+    frames = np.zeros((40, 8, 8, 3), np.uint8)
+    meta = {"fps": 10, "hand_levels": np.stack([np.full(40, 0.7), np.repeat([0.8, 0.3], 20)], axis=1),
+            "gripper": {"sides": ["left", "right"]}, "arm_sides": {"left": [0], "right": [1]}}
+    ep = Episode(name="e", views={"front": frames}, joint_velocities=np.ones((40, 2)), meta=meta)
+    svg = plot_timelines([(ep, {"uvd": [(0, 10), (10, 40)]}, [(0, 20), (20, 40)])], tmp_path / "s.svg",
+                         gt_label="hand rule").read_text()
+    for text in ("cuts: uvd", "cuts: hand rule", "rad/s", "left hand", "right arm speed"):
+        assert text in svg, text
