@@ -41,7 +41,12 @@ def build_parser(prog: str = "rdd") -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None, prog: str = "rdd") -> int:
     """Entry point of the ``rdd`` script and, with ``prog="python -m rdd"``, of ``python -m rdd``."""
-    args = build_parser(prog).parse_args(argv)
+    try:
+        parser = build_parser(prog)
+    except ImportError as exc:  # a module of RDD_PLUGINS that cannot be imported: the registry names it
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     previous = interrupt_on_sigterm()  # restored on return: main() may run inside another program

@@ -36,9 +36,6 @@ from rdd.registry import (
     runtime_names,
 )
 
-# The registry's decomposers (rdd.registry: one module each in rdd/decomposers/), the same the
-# harness's conf/decomposer/*.yaml name as _target_.
-DECOMPOSERS = tuple(available("decomposer"))
 # Parameters the CLI fills itself (from --db, --encoder, --views, --no-calibration), never --option.
 SET_BY_CLI = (*RUNTIME_OBJECTS, "views")
 # Flags that are decomposer parameters. These have defaults, so an --option of the same name wins...
@@ -140,10 +137,17 @@ def make_decomposer(args: argparse.Namespace, first: Episode) -> tuple[Decompose
     return decomposer, {"decomposer": name, "options": options, **config}
 
 
+def decomposer_names() -> tuple[str, ...]:
+    """The registry's decomposers (one module each in rdd/decomposers/, and RDD_PLUGINS'), the same
+    the harness's conf/decomposer/*.yaml name as _target_. Looked up when a parser is built, inside
+    the CLI's error handling: a plugin that cannot be imported is a one-line error."""
+    return tuple(available("decomposer"))
+
+
 def decomposer_help() -> str:
     """Each decomposer's ``--option`` keys and defaults, read from its constructor."""
     lines = ["decomposer options (--option KEY=VALUE):"]
-    for name in DECOMPOSERS:
+    for name in decomposer_names():
         params = [p for p in parameters(component("decomposer", name)).values() if p.name not in SET_BY_CLI]
         lines.append(f"  {name}: " + ", ".join(f"{p.name}={p.default!r}" for p in params))
     return "\n".join(lines)

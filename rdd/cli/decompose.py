@@ -26,7 +26,7 @@ from rdd.cli.common import (
     parse_options,
     write_json_atomic,
 )
-from rdd.cli.components import DECOMPOSERS, decomposer_help, make_decomposer
+from rdd.cli.components import decomposer_help, decomposer_names, make_decomposer
 from rdd.cli.options import (
     add_workers_arg,
     check_workers,
@@ -207,7 +207,7 @@ def add_parser(sub) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog=decomposer_help() + "\n\n" + reader_help())
     data_args(p)
-    p.add_argument("--decomposer", choices=DECOMPOSERS, required=True)
+    p.add_argument("--decomposer", choices=decomposer_names(), required=True)
     p.add_argument("--encoder", help="encoder for rdd/uvd (rdd: default the database's)")
     p.add_argument("--db", help="sub-task database directory (rdd)")
     p.add_argument("--alpha", type=float, help="rdd: weight of the duration term")

@@ -67,11 +67,11 @@ def test_unknown_names_fail_naming_what_exists(group, name):
 
 
 def test_cli_offers_exactly_the_registry():
-    from rdd.cli.components import DECOMPOSERS, decomposer_help
+    from rdd.cli.components import decomposer_help, decomposer_names
 
-    assert list(DECOMPOSERS) == registry.available("decomposer")
+    assert list(decomposer_names()) == registry.available("decomposer")
     help_text = decomposer_help()
-    for name in DECOMPOSERS:
+    for name in decomposer_names():
         assert f"  {name}: " in help_text
 
 
@@ -129,3 +129,14 @@ def test_a_new_decomposer_is_one_module(tmp_path, monkeypatch):
     monkeypatch.setattr(registry, "_SEARCHED", set())
     assert "halves" in registry.available("decomposer")
     assert registry.target("decomposer", "halves") == "my_halves.Halves"
+
+
+def test_a_plugin_that_cannot_be_imported_is_one_line(tmp_path):
+    """``RDD_PLUGINS`` naming a module whose own import fails: the command says which, no traceback."""
+    (tmp_path / "broken_plugin.py").write_text("import no_such_module_anywhere\n")
+    env = {**__import__("os").environ, "RDD_PLUGINS": "broken_plugin", "PYTHONPATH": f"{tmp_path}:{ROOT}"}
+    run = subprocess.run([sys.executable, "-m", "rdd", "decompose", "--help"], env=env, capture_output=True,
+                         text=True)
+    assert run.returncode == 2 and "Traceback" not in run.stderr, run.stderr
+    assert run.stderr.strip().splitlines() == [
+        "error: RDD_PLUGINS: cannot import plugin module 'broken_plugin': No module named 'no_such_module_anywhere'"]
