@@ -40,6 +40,8 @@ SEAL = "field_checksums"
 _ARRAYS = ("begin.npy", "end.npy", "durations.npy")
 _ENTRIES = "entries.json"
 _FRAMES = "frames.npz"
+# Optional, written with the database: the fingerprint of its data (SubtaskDatabase.fingerprint).
+_FINGERPRINT = "fingerprint.json"
 # The per-entry provenance lists of entries.json besides the instructions (``labels``).
 PER_ENTRY = ("episodes", "tasks", "starts", "ends")
 
@@ -127,6 +129,28 @@ def record_calibration(directory: Path, calibration: dict[str, Any]) -> Path:
     manifest.update(format_version=FORMAT_VERSION, calibration=calibration)
     write_json_atomic(mpath, seal(manifest), dumps=lambda m: json.dumps(m, indent=2))
     return mpath
+
+
+def _vouched(manifest: Mapping[str, Any]) -> dict[str, Any]:
+    return {name: manifest["checksums"].get(name) for name in (*_ARRAYS, _ENTRIES)}
+
+
+def write_fingerprint(directory: Path, fingerprint: str) -> None:
+    """Keep the data's fingerprint beside the manifest of ``directory``, tied to the checksums it vouches for."""
+    manifest = json.loads((directory / MANIFEST).read_text())
+    (directory / _FINGERPRINT).write_text(json.dumps({"fingerprint": fingerprint, "checksums": _vouched(manifest)}))
+
+
+def saved_fingerprint(root: Path, manifest: Mapping[str, Any]) -> str | None:
+    """The fingerprint kept in ``root``, if it was made from the files that ``manifest`` (verified) vouches for."""
+    try:
+        kept = json.loads((root / _FINGERPRINT).read_text())
+        fingerprint = kept["fingerprint"]
+        if kept["checksums"] == _vouched(manifest) and isinstance(fingerprint, str) and len(fingerprint) == 64:
+            return fingerprint
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return None
 
 
 class _Snapshot:

@@ -10,6 +10,18 @@ import numpy as np
 from rdd.checks import CheckedOptions
 from rdd.geometry import check_intervals, cosine_to_angular
 
+ROWS_AT_ONCE = 4096  # rows widened to float64 at a time: the sums are the same, no (N, D) float64 copy
+
+
+def row_sq_norms64(x: np.ndarray, einsum: bool = True) -> np.ndarray:
+    """(N,) float64 squared norms of the rows of ``x``, summed in float64 a block of rows at a time
+    (``einsum=False``: as ``(x ** 2).sum(1)``, whose last bits differ; each caller keeps its own)."""
+    out = np.empty(x.shape[0], dtype=np.float64)
+    for i in range(0, x.shape[0], ROWS_AT_ONCE):
+        block = x[i:i + ROWS_AT_ONCE].astype(np.float64)
+        out[i:i + ROWS_AT_ONCE] = np.einsum("ij,ij->i", block, block) if einsum else (block ** 2).sum(1)
+    return out
+
 
 def _as_pair(begin: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     b = np.ascontiguousarray(begin, dtype=np.float32)
@@ -48,7 +60,7 @@ class NearestIndex(CheckedOptions, ABC):
         """
         b, e = _as_pair(begin, end)
         self.num_entries, self.frame_dim = b.shape
-        end_norm = np.sqrt(np.einsum("ij,ij->i", e.astype(np.float64), e.astype(np.float64)))
+        end_norm = np.sqrt(row_sq_norms64(e))
         if (end_norm == 0).any():
             raise ValueError(f"{self.name} index: a database end-frame vector is zero "
                              "(angular distance undefined)")

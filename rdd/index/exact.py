@@ -26,7 +26,7 @@ import numpy as np
 from rdd.checks import FLAG, whole
 from rdd.geometry import check_intervals, cosine_to_angular
 from rdd.index._cap_bounds import CELLS_FORMAT, Cells, fit_cells, load_cells, ranges, save_cells
-from rdd.index.base import NearestIndex
+from rdd.index.base import NearestIndex, row_sq_norms64
 from rdd.registry import register
 
 log = logging.getLogger(__name__)
@@ -54,7 +54,7 @@ class ExactIndex(NearestIndex):
         self._cells: Cells | None = None
 
     def _fit(self, begin: np.ndarray, end: np.ndarray, cache_dir: Path | None, key: str | None) -> None:
-        norm = np.sqrt((begin.astype(np.float64) ** 2).sum(1) + (end.astype(np.float64) ** 2).sum(1))
+        norm = np.sqrt(row_sq_norms64(begin, einsum=False) + row_sq_norms64(end, einsum=False))
         if (norm == 0).any():
             raise ValueError("exact index: a database interval vector is zero (angular distance undefined)")
         # Entries pre-scaled to unit interval norm: a query's dot product with them is its cosine

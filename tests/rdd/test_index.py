@@ -304,3 +304,36 @@ def test_exact_search_ends_shortlist_equals_brute_force():
     cos = (frames / np.linalg.norm(frames, axis=1, keepdims=True)) @ (end / np.linalg.norm(end, axis=1, keepdims=True)).T
     np.testing.assert_allclose(dist, np.sqrt(np.maximum(2 - 2 * cos.max(1), 0)), atol=1e-6)
     np.testing.assert_array_equal(ids, cos.argmax(1))
+
+
+def test_a_saved_database_holds_what_its_first_query_needs(tmp_path, monkeypatch):
+    """save() builds the exact index's clusters and keeps the data's fingerprint beside the manifest:
+    the first decomposer on the loaded database neither clusters nor hashes the vectors again; a
+    fingerprint file that the manifest does not vouch for is ignored (the data are hashed)."""
+    import json
+
+    import rdd.database.model as model_module
+    import rdd.index.exact as exact_module
+    from rdd.database.model import SubtaskDatabase
+    from rdd.decomposers.rdd import RDDDecomposer
+
+    rng = np.random.default_rng(7)
+    n = 200
+    begin, end = l2_normalize(clustered(rng, n, 8)), l2_normalize(clustered(rng, n, 8))
+    db = SubtaskDatabase.from_arrays(begin, end, rng.integers(1, 20, n), [f"t{i % 5}" for i in range(n)])
+    fresh = db.fingerprint()
+    db.save(tmp_path / "db")
+    assert len(list((tmp_path / "db").glob("exact-cells-*.npz"))) == 1
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("built again on load")
+
+    monkeypatch.setattr(exact_module, "fit_cells", refuse)
+    monkeypatch.setattr(model_module.SubtaskDatabase, "_hash", refuse)
+    loaded = SubtaskDatabase.load(tmp_path / "db")
+    assert loaded.fingerprint() == fresh
+    RDDDecomposer(loaded)
+    monkeypatch.undo()
+    kept = tmp_path / "db" / "fingerprint.json"
+    kept.write_text(json.dumps({**json.loads(kept.read_text()), "checksums": {}}))
+    assert SubtaskDatabase.load(tmp_path / "db").fingerprint() == fresh
