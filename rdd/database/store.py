@@ -4,7 +4,9 @@ A database is a directory with ``begin.npy``, ``end.npy``, ``durations.npy``,
 ``entries.json`` (episode, task, instruction, start, end per entry), optionally ``frames.npz``
 (every frame vector of the episodes kept for calibration) and ``manifest.json`` (format version,
 encoder name and weights hash, views, ``normalize_views``, dimensions, entry count, sha256
-checksums, the calibration's chosen options and scores). The directory is written whole through
+checksums, the calibration's chosen options and scores), and ``fingerprint.json`` (the data's
+fingerprint, trusted on load only beside the manifest checksums it was made from) and what the
+indexes built with it (``exact-cells-*.npz``). The directory is written whole through
 ``rdd.atomic.atomic_dir``: it appears complete or not at all, and an existing one is replaced only
 with ``overwrite=True``.
 
