@@ -73,14 +73,7 @@ def plot_success(runs: Sequence[RunRecord], path: Path, title: str) -> bool:
         tops = [mm + (np.nan_to_num(sd) if spread else 0) for mm, sd in zip(means, stds, strict=True)]
         _bar_labels(ax, x, np.nan_to_num(means), np.nan_to_num(tops), texts, colour, width)
     ax.set_xticks(np.arange(len(tasks)), [t.replace("_", "\n") for t in tasks], fontsize=7)
-    ax.set_ylabel("success (%)")
-    ax.set_ylim(0, 118)
-    ax.set_yticks(range(0, 101, 20))
-    ax.set_title(title, fontsize=9)
-    # beside the axes: inside, it covered the bars of the tasks near 100 %
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
-    fig.tight_layout()
-    _save_fig(fig, path)
+    _finish_percent_bars(fig, ax, "success (%)", title, path)
     return True
 
 
@@ -120,13 +113,7 @@ def plot_miou(runs: Sequence[RunRecord], path: Path, title: str) -> bool:
         _bar_labels(ax, x, np.nan_to_num(values), np.nan_to_num(values), texts, colour, width)
     ax.axvline(len(tasks) - 0.5, color="0.7", linewidth=0.8)
     ax.set_xticks(np.arange(len(groups)), [g.replace("_", "\n") for g in groups], fontsize=7)
-    ax.set_ylabel("mIoU vs expert (%)")
-    ax.set_ylim(0, 118)
-    ax.set_yticks(range(0, 101, 20))
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
-    fig.tight_layout()
-    _save_fig(fig, path)
+    _finish_percent_bars(fig, ax, "mIoU vs expert (%)", title, path)
     return True
 
 
@@ -163,3 +150,15 @@ def _save_fig(fig, path: Path) -> None:
     with atomic_file(path) as fh:
         fig.savefig(fh, dpi=130, format="png")
     plt.close(fig)
+
+
+def _finish_percent_bars(fig, ax, ylabel: str, title: str, path: Path) -> None:
+    """The percent axis (room above 100 for the bar labels), title and legend of a bar plot; save it."""
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(0, 118)
+    ax.set_yticks(range(0, 101, 20))
+    ax.set_title(title, fontsize=9)
+    # beside the axes: inside, it covered the bars of the tasks near 100 %
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
+    fig.tight_layout()
+    _save_fig(fig, path)
