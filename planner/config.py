@@ -166,6 +166,9 @@ class PlannerConfig:
     pretrain: TrainSettings = field(default_factory=TrainSettings)
     # smollm2_llava only: LLaVA's first stage, the projector alone trained before ``pretrain``
     align: TrainSettings = field(default_factory=lambda: TrainSettings(lr=1e-3, epochs=1))
+    # smollm2_llava only: False keeps the base at LLaVA's first stage (the projector aligned on scene
+    # captions, the language model as pretrained): a vanilla VLM never trained on any sub-task
+    instruction_tuning: bool = True
     finetune: TrainSettings = field(default_factory=lambda: TrainSettings(lr=2e-3, epochs=20,
                                                                           batch_size=8))
     lora: LoraSettings = field(default_factory=LoraSettings)
@@ -202,6 +205,16 @@ class PlannerConfig:
         if self.describe_scene and not self.pretrain.caption_frame_stride:
             raise ValueError("planner describe_scene needs pretrain.caption_frame_stride > 0 "
                              "(the base learns to describe scenes from those captions)")
+        if not self.instruction_tuning:
+            if self.kind != "smollm2_llava":
+                raise ValueError(f"planner instruction_tuning false needs a pretrained language model "
+                                 f"(kind smollm2_llava), not {self.kind!r}: a model trained here knows no words")
+            if not self.pretrain.caption_frame_stride:
+                raise ValueError("planner instruction_tuning false needs pretrain.caption_frame_stride > 0 "
+                                 "(the projector aligns on those captions alone)")
+            if self.describe_scene:
+                raise ValueError("planner instruction_tuning false and describe_scene true: a base "
+                                 "without instruction tuning never learns to plan after its caption")
         self.image_grid_pinpoints = [[int(a) for a in p] for p in _plain(self.image_grid_pinpoints)]
 
     @classmethod
@@ -228,6 +241,8 @@ class PlannerConfig:
             d.pop("vision_tower")  # keys of bases made before the option existed stay valid
         if not d["describe_scene"]:
             d.pop("describe_scene")
+        if d["instruction_tuning"]:
+            d.pop("instruction_tuning")  # keys of bases made before the option existed stay valid
         if d["train_dtype"] == "float32":
             d.pop("train_dtype")  # keys of bases made before the option existed stay valid
         return d

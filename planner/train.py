@@ -245,7 +245,8 @@ def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_di
 
     ``captions`` (scene-caption examples, :mod:`planner.captions`) are trained on with the planner
     ``examples``; with a projector-alignment stage (smollm2_llava) that stage reads them alone, as
-    LLaVA's first stage aligns on image-caption pairs.
+    LLaVA's first stage aligns on image-caption pairs; with ``instruction_tuning`` false the base is
+    that stage alone (a vanilla VLM).
 
     ``slot_vocabulary`` (per task, the slot words of the corpus the tokenizer also saw) is saved with
     the base; LoRA finetuning renames slot words onto it (:func:`planner.augment.slot_swap`).
@@ -262,11 +263,14 @@ def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_di
             p.requires_grad_("multi_modal_projector" in name)
         align = _train(model, processor, list(captions) or examples, cfg.align, "align projector", progress,
                        train_dtype=cfg.train_dtype)
-        for name, p in model.named_parameters():
-            p.requires_grad_("vision_tower" not in name)
-        examples = [*examples, *captions]
-        log = {"align": align, **_train(model, processor, examples, cfg.pretrain,
-                                        f"pretrain {cfg.kind}", progress, train_dtype=cfg.train_dtype)}
+        if cfg.instruction_tuning:
+            for name, p in model.named_parameters():
+                p.requires_grad_("vision_tower" not in name)
+            examples = [*examples, *captions]
+            log = {"align": align, **_train(model, processor, examples, cfg.pretrain,
+                                            f"pretrain {cfg.kind}", progress, train_dtype=cfg.train_dtype)}
+        else:
+            log = {"align": align}  # the vanilla VLM: no instruction was ever trained on
     else:
         examples = [*examples, *captions]
         tokenizer = train_tokenizer(tokenizer_corpus(examples) + list(extra_corpus), cfg.vocab_size)

@@ -13,11 +13,12 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from experiments.cache.code_keys import code_key, stage_code_key, target_modules
 from experiments.cache.store import StageCache, read_json, spec_key
 from experiments.config.instantiate import Resolved, instantiate_component, resolve
+from experiments.config.validate import target_callable
 from experiments.run import components as comp
 from rdd.atomic import write_json_atomic
 from rdd.data.episode import Episode
@@ -327,6 +328,20 @@ def with_segments(episode: Episode, segments: list, instructions: list[str]) -> 
     """A copy of ``episode`` carrying ``segments`` and their ``instructions`` (the cached one stays as is)."""
     return dataclasses.replace(episode, segments=[tuple(int(v) for v in s) for s in segments],
                                instructions=list(instructions), meta=dict(episode.meta))
+
+
+def with_row_planner(cfg: DictConfig) -> DictConfig:
+    """``cfg`` with the planner its decomposer option evaluates instead of ``planner`` (decomposer=none:
+    the vanilla VLM of the paper's w/o-finetune row), so that every stage sees that one planner."""
+    node = cfg.get("decomposer")
+    if node is None or "planner" not in node:
+        return cfg
+    with open_dict(cfg):
+        planner = cfg.get("planner")
+        if planner is None or getattr(target_callable(planner, "planner"), "learned", True):
+            cfg.planner = node.planner  # the oracle, no learned planner, keeps its plans
+        del cfg.decomposer.planner
+    return cfg
 
 
 def finetunes(cfg: DictConfig) -> bool:

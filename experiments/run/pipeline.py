@@ -20,7 +20,7 @@ from experiments.config.validate import validate_config
 from experiments.report.result_blocks import main_metric, tracker_metrics
 from experiments.report.results import RESULTS_FILE, RESULTS_FORMAT, method_label
 from experiments.run import modes
-from experiments.run.graph import Run, Unavailable
+from experiments.run.graph import Run, Unavailable, with_row_planner
 from experiments.run.job import hardware, hydra_info, set_threads
 from experiments.run.logs import quiet_libraries, show_progress, stage_lines
 from rdd.atomic import write_json_atomic
@@ -45,6 +45,7 @@ def preflight(run: Run) -> None:
 
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Run one configuration end to end; writes results.json and returns its summary."""
+    cfg = with_row_planner(cfg)
     validate_config(cfg)  # unknown or mistyped keys fail here, before anything is written
     out_dir, choices, overrides, multirun, n_jobs = hydra_info()
     if out_dir is None:

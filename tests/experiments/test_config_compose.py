@@ -58,12 +58,13 @@ CALL_SITE = {"env": {"task": "open_drawer"},
 @pytest.mark.parametrize("group,option", [(g, o) for g in GROUPS for o in _options(g)])
 def test_option_composes_and_instantiates(group: str, option: str, runtime):
     from experiments.config.validate import target_callable, validate_config
+    from experiments.run.graph import with_row_planner
 
-    cfg = _compose([f"{group}={option}", "paths.cache_dir=/tmp/unused"])
+    cfg = with_row_planner(_compose([f"{group}={option}", "paths.cache_dir=/tmp/unused"]))  # as the pipeline
     validate_config(cfg)  # every key of the option is a parameter of its target, of its type
     node = cfg[group]
     if not node or not node.get("_target_"):
-        assert group == "decomposer" and option == "none"  # the w/o-finetune planner
+        assert group == "decomposer" and option in ("none", "other_tasks")  # no finetuning
         return
     takes = runtime_names(node, group)
     assert set(takes) <= set(RUNTIME_OBJECTS)
@@ -110,8 +111,9 @@ def test_experiment_composes(experiment: str):
     assert cfg.hydra.runtime.choices.experiment == experiment
     OmegaConf.to_container(cfg, resolve=False)  # every node is well formed
     from experiments.config.validate import validate_config
+    from experiments.run.graph import with_row_planner
 
-    validate_config(cfg)  # and every key is known and of its type
+    validate_config(with_row_planner(cfg))  # and every key is known and of its type (as the pipeline)
 
 
 @pytest.mark.parametrize("launcher", ["local", "slurm", "slurm_local", "ray", "joblib"])
@@ -184,10 +186,35 @@ def test_hydra_options_name_the_rdd_registry_s_components(group: str):
     for option in _options(group):
         node = OmegaConf.load(CONF / group / f"{option}.yaml")
         if "_target_" not in node:
-            assert (group, option) == ("decomposer", "none")  # nothing is decomposed
+            assert (group, option) in (("decomposer", "none"), ("decomposer", "other_tasks"))  # nothing decomposed
             continue
         # A classmethod factory (RDDDecomposer.calibrated) builds its registered class.
         name = name_of(group, node._target_) or name_of(group, node._target_.rpartition(".")[0])
         assert name is not None, f"conf/{group}/{option}.yaml: {node._target_} is not in rdd.registry"
         named.add(name)
     assert named == set(available(group))  # and every registered component has an option
+
+
+def test_the_w_o_finetune_row_evaluates_a_vanilla_planner_and_the_necessity_row_the_base():
+    """decomposer=none swaps in a pretrained language model never tuned on an instruction, whatever
+    planner the run names; decomposer=other_tasks keeps the run's own base planner."""
+    from experiments.run.graph import finetunes, with_row_planner
+    from planner.config import PlannerConfig
+    from planner.llava import SmolLlava
+
+    vanilla = with_row_planner(_compose(["decomposer=none", "planner=tiny_llava", "paths.cache_dir=/tmp/unused"]))
+    assert vanilla.planner._target_ == "planner.llava.SmolLlava"
+    options = OmegaConf.to_container(vanilla.planner)
+    cfg = SmolLlava(**{k: v for k, v in options.items() if k != "_target_"}).config
+    assert cfg.kind == "smollm2_llava" and not cfg.instruction_tuning and cfg.pretrain.caption_frame_stride > 0
+    assert "planner" not in vanilla.decomposer and not finetunes(vanilla)
+    necessity = with_row_planner(_compose(["decomposer=other_tasks", "planner=tiny_llava",
+                                           "paths.cache_dir=/tmp/unused"]))
+    assert necessity.planner._target_ == "planner.llava.TinyLlava" and not finetunes(necessity)
+    oracle = with_row_planner(_compose(["experiment=oracle", "paths.cache_dir=/tmp/unused"]))
+    assert oracle.planner._target_.startswith("planner.oracle")  # no learned planner: its plans stay
+    with pytest.raises(ValueError, match="instruction_tuning false needs a pretrained language model"):
+        PlannerConfig(kind="tiny_llava", instruction_tuning=False)
+    with pytest.raises(ValueError, match="caption_frame_stride"):
+        PlannerConfig(kind="smollm2_llava", vision_tower="effnet_lite0_mid", image_size=224, patch_size=32,
+                      instruction_tuning=False)

@@ -127,3 +127,35 @@ def test_smoke_scale_base_and_lora(smol_cache, monkeypatch, tmp_path):
     assert losses[-1] < losses[0]
     preds, _ = VLMPlanner(cfg, base, adapter).hits(tune)
     assert len(preds) == len(tune) and all(isinstance(p, str) and p for p in preds)
+
+
+@needs_wheel
+def test_a_vanilla_base_aligns_its_projector_on_captions_and_leaves_the_language_model_as_pretrained(
+        smol_cache, monkeypatch, tmp_path):
+    """instruction_tuning false (the w/o-finetune row's planner): LLaVA's first stage alone."""
+    import json
+
+    from synthetic_world import make_episodes
+    from transformers import AutoModelForCausalLM
+
+    from planner.captions import CAPTION_QUESTION
+    from planner.dataset import PlannerExample
+    from planner.models import load_model
+    from planner.train import pretrain_base, training_examples
+
+    monkeypatch.setenv("RDD_CACHE_DIR", str(smol_cache.parents[1]))
+    cfg = _cfg(instruction_tuning=False, align=dict(lr=1e-3, epochs=1, batch_size=4),
+               pretrain=dict(lr=5e-5, epochs=1, batch_size=4, caption_frame_stride=8))
+    pre = training_examples(make_episodes(["pick_and_lift"], range(1), image_size=224), cfg.pretrain)
+    captions = [PlannerExample(image=e.image, goal="", previous_instruction=None, target="the red block is on the table.",
+                               task=e.task, episode=e.episode, frame=e.frame, question=CAPTION_QUESTION) for e in pre[:4]]
+    base = pretrain_base(cfg, pre, tmp_path / "base", captions=captions, progress=False)
+    log = json.loads((base / "train_log.json").read_text())
+    assert set(log) == {"align"} and log["align"]["examples"] == len(captions)  # no instruction trained on
+    model, _ = load_model(base, cfg)
+    lm = AutoModelForCausalLM.from_pretrained(smol_cache, dtype=torch.float32)
+    ours = dict(model.named_parameters())
+    for name, theirs in lm.named_parameters():
+        if name.endswith("layers.3.self_attn.q_proj.weight") or name.endswith("layers.29.mlp.down_proj.weight"):
+            match = [p for n, p in ours.items() if n.endswith(name.removeprefix("model."))]
+            assert len(match) == 1 and torch.equal(match[0], theirs), name
