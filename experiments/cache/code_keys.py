@@ -190,3 +190,22 @@ def stage_code_key(stage: str, files: Iterable[str] = (), spec: Any = None,
     if builders is None:
         return None
     return code_key([*builders, *target_modules(spec), *modules], files)
+
+
+class StageCodes:
+    """The code fingerprints of one stage cache's stages, each computed once per stage, task files and
+    components: a stage looked up once per episode or task would otherwise hash its sources each time."""
+
+    def __init__(self) -> None:
+        self._known: dict[tuple[str, tuple[str, ...], tuple[str, ...]], str | None] = {}
+
+    def key(self, stage: str, files: Iterable[str] = (), spec: Any = None, uses: Any = None) -> str | None:
+        """:func:`stage_code_key` of ``stage`` and ``files`` with the modules of the ``_target_``
+        components that ``spec`` names and that ``uses`` names (components the stage runs that its
+        spec does not hold)."""
+        files = tuple(files)
+        modules = (*target_modules(spec), *target_modules(uses))
+        known = (stage, tuple(sorted(set(files))), tuple(sorted(set(modules))))
+        if known not in self._known:
+            self._known[known] = stage_code_key(stage, files, modules=modules)
+        return self._known[known]

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from experiments.cache.code_keys import stage_code_key
+from experiments.cache.code_keys import StageCodes
 from experiments.cache.locks import HEARTBEAT_S, STALE_AFTER_S, FileLock
 from rdd.atomic import TargetExistsError, atomic_dir, check_writable, leftovers, write_json_atomic
 
@@ -91,6 +91,7 @@ class StageCache:
     heartbeat_s: float = HEARTBEAT_S
     stale_after_s: float = STALE_AFTER_S
     temporary: bool = False  # a folder of this run only (the shared one could not be written)
+    codes: StageCodes = field(default_factory=StageCodes)  # each stage's code fingerprint, computed once
 
     def __post_init__(self) -> None:
         self.root = Path(self.root)
@@ -146,7 +147,7 @@ class StageCache:
         timing_name: str | None = None,
         wait: bool = True,
         code: tuple[str, ...] = (),
-        modules: tuple[str, ...] = (),
+        uses: Any = None,
     ) -> tuple[Path, str] | None:
         """Directory holding ``stage``'s output for ``spec``, calling ``build(tmp_dir)`` on a miss.
 
@@ -154,11 +155,12 @@ class StageCache:
         (accumulated when a stage runs several times in one run, e.g. once per task).
         ``wait=False``: None at once when the entry is missing and another job is building it.
         ``code``: source files beyond what the stage's builders import (e.g. one task's modules) in
-        its key; ``modules``: modules it runs that its spec does not name by ``_target_``.
+        its key; ``uses``: config nodes of components it runs that its spec does not hold (their
+        ``_target_`` modules join its code key).
         """
-        fingerprint = stage_code_key(stage, code, spec, modules)
-        if fingerprint is not None:
-            spec = {**spec, "code": fingerprint}
+        fingerprint = self.codes.key(stage, code, spec, uses)
+        # Made canonical once: the key hashes it, and a built entry records it as its spec file.
+        spec = canonical(spec if fingerprint is None else {**spec, "code": fingerprint})
         key = spec_key(spec)
         final = self.path(stage, key)
         start = time.perf_counter()
@@ -173,13 +175,14 @@ class StageCache:
         return final, key
 
     def _build(self, final: Path, spec: dict[str, Any], build: Callable[[Path], None]) -> bool:
-        """Build ``final`` under its lock; False when built here, True if another job's finished entry won."""
+        """Build ``final`` under its lock (``spec``: canonical); False when built here, True if another
+        job's finished entry won."""
         _clear_leftovers(final)
         try:
             with atomic_dir(final) as tmp:
                 build(tmp)
                 # Written last: an entry is finished exactly when its spec file is there.
-                write_json_atomic(tmp / SPEC_FILE, canonical(spec),
+                write_json_atomic(tmp / SPEC_FILE, spec,
                                   dumps=lambda obj: json.dumps(obj, indent=1, sort_keys=True))
         except TargetExistsError:
             # Only when a lock was wrongly judged stale and two jobs built: the first rename wins.

@@ -19,6 +19,7 @@ fill fails here, before the target runs, naming the component and the parameter.
 from __future__ import annotations
 
 import functools
+import inspect
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -30,59 +31,70 @@ from rdd import registry
 from rdd.registry import RUNTIME_OBJECTS
 
 
-def runtime_names(node: DictConfig, group: str, fn: Any = None) -> tuple[str, ...]:
-    """The runtime objects the component of ``node`` takes (its parameters named in RUNTIME_OBJECTS);
-    ``fn``: the node's target when the caller has resolved it already."""
-    names = registry.runtime_names(fn if fn is not None else target_callable(node, group))
+def runtime_names(node: DictConfig, group: str) -> tuple[str, ...]:
+    """The runtime objects the component of ``node`` takes (its parameters named in RUNTIME_OBJECTS)."""
+    return _call_names(node, group, target_callable(node, group))[0]
+
+
+def _call_names(node: DictConfig, group: str, fn: Any) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The runtime objects ``fn`` takes (as :func:`rdd.registry.runtime_names` reads them) and its
+    parameters without a default; a runtime object that the config sets fails here."""
+    # One reading of the signature serves both checks, so a run asks the registry once per component.
+    params = registry.parameters(fn)
+    names = tuple(name for name in RUNTIME_OBJECTS if name in params)
     for name in names:
         if node.get(name) is not None:
             raise ConfigError(f"{group}.{name}: `{name}` is a runtime object ({RUNTIME_OBJECTS[name]}) "
                               f"that the run passes to {node._target_}; remove it from the config")
-    return names
-
-
-def check_call(node: DictConfig, group: str, given: Iterable[str] = (), fn: Any = None) -> None:
-    """Fail naming the component and parameter when a required parameter would be left unfilled.
-
-    ``given`` are the names the call site passes (runtime objects and its own arguments).
-    """
-    given = set(given) | {key for key in node if node.get(key) is not None}
-    unset = registry.unset_parameters(fn if fn is not None else target_callable(node, group), given)
-    if unset:
-        raise ConfigError(
-            f"{group} ({node._target_}): parameter {unset[0]!r} is not set by the config and is not a "
-            f"runtime object the run passes (those are {', '.join(RUNTIME_OBJECTS)}: name the "
-            "parameter after one of them, or give it a default)")
-
-
-def component_factory(node: DictConfig, group: str, fn: Any = None) -> functools.partial:
-    """The ``_target_`` with the config's options bound; the caller passes the rest."""
-    from hydra.utils import instantiate
-
-    check_component_node(group, node, fn)
-    partial = instantiate(node, _partial_=True)
-    if not isinstance(partial, functools.partial):
-        raise TypeError(f"config group {group!r}: {node._target_} did not give a partial")
-    return partial
+    return names, tuple(name for name, p in params.items() if p.default is inspect.Parameter.empty)
 
 
 @dataclass(frozen=True)
 class Resolved:
-    """A component node resolved and checked once: its ``_target_`` and the runtime objects it takes."""
+    """A component node resolved and checked once: its ``_target_``, the runtime objects it takes and
+    its parameters without a default."""
 
     node: DictConfig
     group: str
     target: Any
     runtime: tuple[str, ...]
+    required: tuple[str, ...]
 
 
-def resolve(node: DictConfig, group: str) -> Resolved:
+def resolve(node: DictConfig | Resolved, group: str) -> Resolved:
     """Resolve ``node``'s target once, check its options and its runtime-object keys."""
     if isinstance(node, Resolved):
         return node
     fn = target_callable(node, group)
     check_component_node(group, node, fn)
-    return Resolved(node, group, fn, runtime_names(node, group, fn))
+    return Resolved(node, group, fn, *_call_names(node, group, fn))
+
+
+def check_call(component: Resolved, given: Iterable[str] = ()) -> None:
+    """Fail naming the component and parameter when a required parameter would be left unfilled.
+
+    ``given`` are the names the call site passes (runtime objects and its own arguments).
+    """
+    node = component.node
+    given = set(given) | {key for key in node if node.get(key) is not None}
+    unset = [name for name in component.required if name not in given]
+    if unset:
+        raise ConfigError(
+            f"{component.group} ({node._target_}): parameter {unset[0]!r} is not set by the config and is not a "
+            f"runtime object the run passes (those are {', '.join(RUNTIME_OBJECTS)}: name the "
+            "parameter after one of them, or give it a default)")
+
+
+def component_factory(node: DictConfig | Resolved, group: str) -> functools.partial:
+    """The ``_target_`` with the config's options bound (``node``: a config node, or one :func:`resolve`
+    checked already); the caller passes the rest."""
+    from hydra.utils import instantiate
+
+    component = resolve(node, group)
+    partial = instantiate(component.node, _partial_=True)
+    if not isinstance(partial, functools.partial):
+        raise TypeError(f"config group {group!r}: {component.node._target_} did not give a partial")
+    return partial
 
 
 def instantiate_component(node: DictConfig | Resolved, group: str, runtime: Mapping[str, Any] | None = None,
@@ -97,7 +109,7 @@ def instantiate_component(node: DictConfig | Resolved, group: str, runtime: Mapp
 
     component = resolve(node, group)
     runtime = dict(runtime or {})
-    check_call(component.node, group, [*runtime, *kwargs], component.target)
+    check_call(component, [*runtime, *kwargs])
     # A partial from the config, called with the runtime objects: they never pass through
     # OmegaConf (which would copy or reject them).
     partial = instantiate(component.node, _partial_=True)

@@ -11,7 +11,7 @@ import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -19,6 +19,9 @@ from experiments.cache.store import read_json
 from experiments.run.logs import progress_enabled
 from rdd.atomic import write_json_atomic
 from rdd.segments import Segment
+
+if TYPE_CHECKING:
+    from experiments.config.instantiate import Resolved
 
 PLANNER_FILE = "planner.json"
 
@@ -226,8 +229,9 @@ def load_database(path: Path):
 POLICY_FILE = "policy.json"
 
 
-def train_policy(policy_cfg: DictConfig, episodes, labeler, text_cache: Path, out: Path) -> None:
-    """Train the keyframe policy on episodes carrying expert segments labelled by ``labeler``.
+def train_policy(policy: DictConfig | Resolved, episodes, labeler, text_cache: Path, out: Path) -> None:
+    """Train the keyframe policy (``policy``: its training factory's node, as the run resolved it) on
+    episodes carrying expert segments labelled by ``labeler``.
 
     The episodes' instructions are the labels the pipeline recorded for these segments; the
     policy's dataset builder labels the same segments with the same labeler, which is checked here.
@@ -235,7 +239,7 @@ def train_policy(policy_cfg: DictConfig, episodes, labeler, text_cache: Path, ou
     from experiments.config.instantiate import component_factory
     from policy.text import shared_embedder
 
-    train = component_factory(policy_cfg, "policy")
+    train = component_factory(policy, "policy")
     eps = list(episodes)
     for ep in eps[:1]:
         got = [labeler.label(ep, tuple(s)) for s in ep.segments]

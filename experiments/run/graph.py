@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from experiments.cache.code_keys import code_key, stage_code_key, target_modules
+from experiments.cache.code_keys import code_key, target_modules
 from experiments.cache.store import StageCache, read_json, spec_key
 from experiments.config.instantiate import Resolved, instantiate_component, resolve
 from experiments.config.validate import target_callable
@@ -129,7 +129,7 @@ class Run:
     def demos_key(self, task: str) -> str:
         """Key of ``task``'s demos: the env options demos depend on, the env code and the task's module."""
         return spec_key({"env": comp.demo_env_options(self.cfg.env),
-                         "code": stage_code_key("demos", comp.task_sources(task))})
+                         "code": self.cache.codes.key("demos", comp.task_sources(task))})
 
     def episodes(self, task: str, split: str, count: int, first: int = 0, wait: bool = True) -> list | None:
         """Successful scripted demos ``first .. first+count-1`` of ``task`` in ``split`` (cached).
@@ -199,7 +199,7 @@ class Run:
         spec = {"policy": self.node("policy"), "data": data_key}
         return self.cache.get_or_build(
             "policy", spec,
-            lambda tmp: comp.train_policy(self.cfg.policy, eps, self.train_labeler(),
+            lambda tmp: comp.train_policy(self.component("policy"), eps, self.train_labeler(),
                                           self.text_cache(), tmp), wait=wait)
 
     def labeler(self):

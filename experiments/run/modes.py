@@ -7,7 +7,6 @@ from typing import Any
 
 import numpy as np
 
-from experiments.cache.code_keys import target_modules
 from experiments.cache.store import read_json
 from experiments.config.instantiate import instantiate_component
 from experiments.report.result_blocks import decomposition_block, planner_eval_block
@@ -61,7 +60,7 @@ def hierarchical(run: Run, results: dict[str, Any]) -> None:
             loaded["planner"] = make_planner()
         return loaded["planner"], loaded["policy"]
 
-    planner_modules = tuple(target_modules(run.node("planner")))  # the oracle's code has no stage key
+    planner_node = run.node("planner")  # its code joins the key: the oracle has no stage key of its own
     episodes: list[dict[str, Any]] = []
     for task in run.eval_tasks:
         spec = {"planner": planner_key, "policy": policy_key, "env": run.node("env"), "task": task,
@@ -74,7 +73,7 @@ def hierarchical(run: Run, results: dict[str, Any]) -> None:
             write_json_atomic(tmp / "episodes.json", [r.to_dict() for r in rows])
 
         path, _ = run.cache.get_or_build("evaluation", spec, build, code=comp.task_sources(task),
-                                         modules=planner_modules)
+                                         uses=planner_node)
         episodes += read_json(path / "episodes.json")
     per_task = per_task_success(episodes)
     results.update(

@@ -35,10 +35,9 @@ def preflight(run: Run) -> None:
     takes: set[str] = set()
     for group in ("decomposer", "labeler"):
         component = run.component(group)
-        names = component.runtime
         # A parameter nothing fills fails now, not after the demos.
-        check_call(component.node, group, names, component.target)
-        takes |= set(names)
+        check_call(component, component.runtime)
+        takes |= set(component.runtime)
     if takes & {"encoder", "database"}:
         run.encoder()  # a missing checkpoint fails here, at once
 

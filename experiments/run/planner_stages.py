@@ -11,7 +11,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from experiments.cache.code_keys import target_modules
 from experiments.cache.store import read_json, spec_key
 from experiments.config.instantiate import instantiate_component
 from experiments.run import components as comp
@@ -83,7 +82,7 @@ def base_planner_dir(run: Run) -> tuple[Path, str]:
     return run.cache.get_or_build(
         "planner_base", spec,
         lambda tmp: comp.pretrain_planner(run.learned_planner(), eps, corpus, tmp, vocab_eps),
-        modules=tuple(target_modules(run.node("planner"))))
+        uses=run.node("planner"))
 
 
 def planner_stage(run: Run) -> tuple[Path, Path | None, str, dict[str, Any]]:

@@ -96,6 +96,23 @@ def test_every_stage_of_the_repository_has_a_key_and_components_join_it(tmp_path
     assert key == spec_key({"a": 1, "code": stage_code_key("planner_base")}) != spec_key({"a": 1})
 
 
+def test_a_stage_s_code_key_is_computed_once_per_stage_and_components(tmp_path: Path, monkeypatch):
+    """A stage looked up per episode hashes its sources once; ``uses`` adds a component's code to the key."""
+    import experiments.cache.code_keys as code_keys
+
+    real, calls = code_keys.stage_code_key, []
+    monkeypatch.setattr(code_keys, "stage_code_key", lambda stage, *a, **k: calls.append(stage) or real(stage, *a, **k))
+    cache = StageCache(tmp_path)
+    labeler = {"_target_": "envs.labeler.PrivilegedLabeler"}
+    for n in range(3):
+        cache.get_or_build("expert_labels", {"episode": n, "labeler": labeler}, lambda d: None)
+    assert calls == ["expert_labels"]
+    path, _ = cache.get_or_build("planner_base", {"a": 1}, lambda d: None, uses=labeler)
+    assert json.loads((path / "spec.json").read_text())["code"] == real("planner_base", modules=["envs.labeler"])
+    assert real("planner_base", modules=["envs.labeler"]) != real("planner_base")
+    assert calls == ["expert_labels", "planner_base"]
+
+
 def test_each_task_keys_its_stages_by_its_own_module():
     pytest.importorskip("pybullet")
     from envs.tasks import task_sources

@@ -10,7 +10,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf, open_dict
 
 import experiments.config.schemas  # noqa: F401  (registers base_config)
-from experiments.config.instantiate import instantiate_component, runtime_names
+from experiments.config.instantiate import check_call, instantiate_component, resolve, runtime_names
 from experiments.config.validate import ConfigError
 from rdd.decomposers.base import Decomposer, Decomposition
 from rdd.decomposers.uniform import UniformDecomposer
@@ -89,6 +89,16 @@ def test_runtime_object_set_in_the_config_is_refused():
     uvd = OmegaConf.create({"_target_": "rdd.decomposers.uvd.UVDDecomposer", "cache": "/tmp/x"})
     with pytest.raises(ConfigError, match=r"decomposer.cache: `cache` is a runtime object"):
         runtime_names(uvd, "decomposer")
+
+
+def test_a_component_s_signature_is_read_once_for_both_checks():
+    """resolve reads the target once: the runtime objects it takes and the parameters it cannot do without."""
+    component = resolve(_node(IndexLabeler), "labeler")
+    assert component.runtime == ("database",) and component.required == ("database", "nearest_index")
+    check_call(component, ["database", "nearest_index"])
+    with pytest.raises(ConfigError, match=r"labeler \(.*IndexLabeler\): parameter 'nearest_index' is not set"):
+        check_call(component, component.runtime)
+    assert resolve(component, "labeler") is component
 
 
 @pytest.mark.parametrize("group,cls,param", [
