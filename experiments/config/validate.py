@@ -306,6 +306,9 @@ def validate_config(cfg: DictConfig, schema: type | None = None,
         if key in components:
             if _is_component(value):
                 check_component_node(str(key), value)
+            elif key == "decomposer" and isinstance(value, DictConfig) and set(value) == {"planner"}:
+                # a row that decomposes nothing and evaluates its own planner (decomposer=none)
+                check_component_node("decomposer.planner", value.planner)
             elif value is not None and not (isinstance(value, DictConfig) and len(value) == 0):
                 raise ConfigError(f"{key}: expected a `_target_` node (an option of conf/{key}/), "
                                   f"got {_fmt(value)}")

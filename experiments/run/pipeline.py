@@ -44,8 +44,8 @@ def preflight(run: Run) -> None:
 
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Run one configuration end to end; writes results.json and returns its summary."""
-    cfg = with_row_planner(cfg)
     validate_config(cfg)  # unknown or mistyped keys fail here, before anything is written
+    cfg = with_row_planner(cfg)
     out_dir, choices, overrides, multirun, n_jobs = hydra_info()
     if out_dir is None:
         out_dir = Path(OmegaConf.select(cfg, "output_dir", default=None) or "outputs/run")

@@ -109,6 +109,8 @@ def _numbers(node: DictConfig, prefix: str):
         if key == "_target_" or node._get_node(key)._is_interpolation():
             continue  # a nested component (``index: ${index}``) is checked under its own group
         value = node[key]
+        if prefix == "decomposer" and key == "planner":
+            continue  # decomposer=none's planner: its settings are checked as the planner's
         if isinstance(value, DictConfig):
             yield from _numbers(value, f"{prefix}.{key}")
         elif isinstance(value, int | float) and not isinstance(value, bool):
