@@ -66,9 +66,14 @@ def real_frames(n: int) -> tuple[np.ndarray, str] | None:
 
 
 def plain_torch(name: str):
-    """The same weights as the library's encoder, as a plain model plus its preprocessing."""
+    """The same weights as the library's encoder, as a plain model plus its preprocessing in torch."""
     enc = load_encoder(name, runtime="torch")  # its encode is never called: the model stays as built
-    return enc.model, enc._forward, enc._preprocess
+    preprocess = enc._preprocess
+    if name.startswith("effnet_lite"):  # the library's is numpy; plain torch resizes in torch
+        from rdd.encoders._effnet_lite import VARIANTS, make_torch_preprocess
+
+        preprocess = make_torch_preprocess(VARIANTS[int(name[-1])].resolution)
+    return enc.model, enc._forward, preprocess
 
 
 def run_plain(model, forward, preprocess, frames: np.ndarray, batch: int, channels_last: bool) -> np.ndarray:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-from collections.abc import Callable, Iterator
+import sys
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -32,24 +33,6 @@ def check_batch_size(batch_size: int, who: str) -> int:
     if int(batch_size) != batch_size or int(batch_size) < 1:
         raise ValueError(f"{who}: option batch_size must be a positive integer, got {batch_size!r}")
     return int(batch_size)
-
-
-@contextlib.contextmanager
-def torch_threads(num_threads: int | None) -> Iterator[None]:
-    """Run the block with ``num_threads`` intra-op torch threads (unchanged when None), then restore."""
-    import torch
-
-    if num_threads is None:
-        yield
-        return
-    if int(num_threads) != num_threads or int(num_threads) < 1:
-        raise ValueError(f"option num_threads must be a positive integer or null, got {num_threads!r}")
-    before = torch.get_num_threads()
-    torch.set_num_threads(int(num_threads))
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def state_dict_hash(module: torch.nn.Module) -> str:
@@ -107,6 +90,8 @@ class TorchEncoder(Encoder):
         self._forward_fn = forward
         self.preprocess_id = preprocess_id
         self.batch_size = check_batch_size(batch_size, name)
+        if num_threads is not None and (int(num_threads) != num_threads or int(num_threads) < 1):
+            raise ValueError(f"{name}: option num_threads must be a positive integer or null, got {num_threads!r}")
         self.num_threads = num_threads
         self.checkpoint = checkpoint
         self.runtime = runtime
@@ -143,15 +128,15 @@ class TorchEncoder(Encoder):
 
     def encode(self, images: np.ndarray) -> np.ndarray:
         """Embed uint8 images (N, H, W, 3) into float32 (N, dim), ``batch_size`` images at a time."""
-        import torch
-
         images = check_images(images, self.name)
         if images.shape[0] == 0:
             return np.zeros((0, self.dim), dtype=np.float32)
-        from rdd.encoders._runtime import make_runner
+        from rdd.encoders._runtime import make_runner, torch_scope
 
         outs = []
-        with torch_threads(self.num_threads), torch.inference_mode():
+        # A numpy preprocess on ONNX Runtime needs no torch; where torch is loaded anyway (a torch
+        # preprocess or runner), its ops run with the encoder's threads and without autograd.
+        with torch_scope(self.num_threads) if "torch" in sys.modules else contextlib.nullcontext():
             for start in range(0, images.shape[0], self.batch_size):
                 x = self._preprocess(images[start : start + self.batch_size])
                 if self._runner is None:
@@ -161,3 +146,4 @@ class TorchEncoder(Encoder):
                     raise RuntimeError(f"{self.name}: model produced {y.shape[1]}-d features, expected {self.dim}")
                 outs.append(y)
         return np.concatenate(outs, axis=0).astype(np.float32, copy=False)
+

@@ -69,7 +69,19 @@ def _model_class(v: LiteVariant):
 
 
 def make_preprocess(resolution: int):
-    """uint8 (N, H, W, 3) -> float (N, 3, R, R) in [-1, 1] for a variant of resolution R."""
+    """uint8 (N, H, W, 3) -> float32 numpy (N, 3, R, R) in [-1, 1] for a variant of resolution R
+    (torch's bilinear resize within float rounding, without importing torch)."""
+
+    def preprocess(images: np.ndarray) -> np.ndarray:
+        from rdd.encoders._preprocess_np import resized_center_crop
+
+        return resized_center_crop(images, resolution, scale=2.0 / 255.0, offset=-1.0)
+
+    return preprocess
+
+
+def make_torch_preprocess(resolution: int):
+    """The same preprocessing in torch (uint8 -> float tensor), as a plain torch user writes it."""
 
     def preprocess(images: np.ndarray):
         from rdd.encoders._preprocess import center_crop, resize_shorter, to_float_tensor
@@ -104,7 +116,7 @@ class EffNetLiteEncoder(TorchEncoder):
 def build_variant(
     index: int,
     checkpoint: str | None = None,
-    batch_size: int = 32,
+    batch_size: int = 8,
     num_threads: int | None = None,
     runtime: str = "auto",
     device: str = "auto",

@@ -17,6 +17,7 @@ import inspect
 import io
 import json
 import logging
+import sys
 import warnings
 from collections.abc import Sequence
 from importlib import metadata
@@ -83,9 +84,14 @@ def files_hash(paths: Sequence[str]) -> str:
     return h.hexdigest()
 
 
-def _key_without_code(encoder, shape: Sequence[int]) -> dict:
-    import torch
+def _torch_version() -> str:
+    # The installed distribution's version is torch.__version__, read without importing torch.
+    if "torch" in sys.modules:
+        return str(sys.modules["torch"].__version__)
+    return metadata.version("torch")
 
+
+def _key_without_code(encoder, shape: Sequence[int]) -> dict:
     try:
         onnx_version = metadata.version("onnx")
     except metadata.PackageNotFoundError:
@@ -95,7 +101,7 @@ def _key_without_code(encoder, shape: Sequence[int]) -> dict:
         "encoder": encoder.name,
         "weights_id": encoder.weights_id,
         "input": [int(s) for s in shape],
-        "torch": torch.__version__,
+        "torch": _torch_version(),
         "onnx": onnx_version,
         "opset": OPSET,
     }
@@ -219,11 +225,11 @@ class OnnxRunner:
         self.exports = 0  # graphs exported by this runner (0 when every one came from the cache)
         self._sessions: dict[tuple[int, ...], Any] = {}
 
-    def prepare(self, x: torch.Tensor) -> None:
+    def prepare(self, x: torch.Tensor | np.ndarray) -> None:
         """Load (or export, check and cache) the session for inputs shaped like ``x``."""
         self._session(x)
 
-    def _session(self, x: torch.Tensor):
+    def _session(self, x: torch.Tensor | np.ndarray):
         shape = tuple(int(s) for s in x.shape[1:])
         if shape in self._sessions:
             return self._sessions[shape]
@@ -245,9 +251,11 @@ class OnnxRunner:
         self._sessions[shape] = session
         return session
 
-    def _export(self, x: torch.Tensor, path: Path):
+    def _export(self, x: torch.Tensor | np.ndarray, path: Path):
         import torch
 
+        if isinstance(x, np.ndarray):
+            x = torch.from_numpy(np.ascontiguousarray(x))
         try:
             data = export_bytes(self.encoder, x)
             session = open_session(data, self.threads, self.providers)
@@ -272,9 +280,13 @@ class OnnxRunner:
             log.warning("could not cache the ONNX export of %s at %s: %s", self.encoder.name, path, exc)
         return session
 
-    def __call__(self, x: torch.Tensor) -> np.ndarray:
+    def __call__(self, x: torch.Tensor | np.ndarray) -> np.ndarray:
         """Features (N, D) of the preprocessed batch ``x`` (N, C, H, W)."""
-        out = self._session(x).run([OUTPUT], {INPUT: x.contiguous().float().cpu().numpy()})[0]
+        if isinstance(x, np.ndarray):
+            data = np.ascontiguousarray(x, dtype=np.float32)
+        else:
+            data = x.contiguous().float().cpu().numpy()
+        out = self._session(x).run([OUTPUT], {INPUT: data})[0]
         return out.reshape(out.shape[0], -1).astype(np.float32, copy=False)
 
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
+import sys
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -35,6 +37,33 @@ def check_runtime(runtime: str, device: str, who: str) -> None:
         raise ValueError(f"{who}: option runtime must be one of {list(RUNTIMES)}, got {runtime!r}")
     if device not in DEVICES:
         raise ValueError(f"{who}: option device must be one of {list(DEVICES)}, got {device!r}")
+
+
+@contextlib.contextmanager
+def torch_threads(num_threads: int | None) -> Iterator[None]:
+    """Run the block with ``num_threads`` intra-op torch threads (unchanged when None), then restore."""
+    import torch
+
+    if num_threads is None:
+        yield
+        return
+    if int(num_threads) != num_threads or int(num_threads) < 1:
+        raise ValueError(f"option num_threads must be a positive integer or null, got {num_threads!r}")
+    before = torch.get_num_threads()
+    torch.set_num_threads(int(num_threads))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+@contextlib.contextmanager
+def torch_scope(num_threads: int | None) -> Iterator[None]:
+    """``torch_threads(num_threads)`` inside ``torch.inference_mode()``."""
+    import torch
+
+    with torch_threads(num_threads), torch.inference_mode():
+        yield
 
 
 @dataclass(frozen=True)
@@ -106,6 +135,7 @@ class TorchRunner:
 
         self.device = torch.device(device)
         self.forward = encoder._forward
+        self.num_threads = encoder.num_threads
         self.channels_last = self.device.type == "cpu"
         # The runner is made inside encode's inference mode; weights moved or re-laid out there
         # would become inference tensors, which autograd (tracing, finetuning the model) refuses.
@@ -116,8 +146,16 @@ class TorchRunner:
             if self.channels_last:
                 encoder.model.to(memory_format=torch.channels_last)
 
-    def __call__(self, x: torch.Tensor) -> np.ndarray:
+    def __call__(self, x: torch.Tensor | np.ndarray) -> np.ndarray:
         """Features (N, D) of the preprocessed batch ``x``."""
+        import torch
+
+        if isinstance(x, np.ndarray):
+            x = torch.from_numpy(np.ascontiguousarray(x))
+        with torch_scope(self.num_threads):
+            return self._run(x)
+
+    def _run(self, x: torch.Tensor) -> np.ndarray:
         import torch
 
         x = x.to(self.device)
@@ -128,17 +166,37 @@ class TorchRunner:
         return y.reshape(y.shape[0], -1).float().cpu().numpy()
 
 
-def make_runner(encoder, example: torch.Tensor):
-    """The runner for ``encoder`` (options ``runtime``, ``device``, ``num_threads``), its ONNX session
-    prepared on ``example`` (the first preprocessed batch); auto falls back to torch, logging why."""
+def cuda_available() -> bool:
+    """Whether torch sees a CUDA device; on Linux without a GPU device node, known without importing torch."""
+    if sys.platform == "linux" and "torch" not in sys.modules:
+        nodes = ("/dev/nvidiactl", "/dev/nvidia0", "/dev/kfd", "/dev/dxg")
+        if not any(os.path.exists(node) for node in nodes):
+            return False
     import torch
 
-    plan = choose(encoder.runtime, encoder.device, torch.cuda.is_available(),
+    return torch.cuda.is_available()
+
+
+def default_threads() -> int:
+    """torch's intra-op thread count when torch is loaded, else what it would default to here
+    (``OMP_NUM_THREADS``, else the CPUs this process may run on)."""
+    if "torch" in sys.modules:
+        return int(sys.modules["torch"].get_num_threads())
+    env = os.environ.get("OMP_NUM_THREADS", "")
+    if env.isdigit() and int(env) > 0:
+        return int(env)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def make_runner(encoder, example: torch.Tensor | np.ndarray):
+    """The runner for ``encoder`` (options ``runtime``, ``device``, ``num_threads``), its ONNX session
+    prepared on ``example`` (the first preprocessed batch); auto falls back to torch, logging why."""
+    plan = choose(encoder.runtime, encoder.device, cuda_available(),
                   ort_providers() if encoder.runtime != "torch" else None)
     if plan.runtime == "onnx":
         from rdd.encoders._onnx import OnnxRunner
 
-        runner = OnnxRunner(encoder, plan.providers, encoder.num_threads or torch.get_num_threads())
+        runner = OnnxRunner(encoder, plan.providers, encoder.num_threads or default_threads())
         try:
             runner.prepare(example)
             log.info("encoder %s: ONNX Runtime on %s (%d threads)", encoder.name, plan.device, runner.threads)

@@ -6,7 +6,8 @@ import hashlib
 
 import numpy as np
 
-from rdd.encoders._common import check_batch_size, check_images, torch_threads
+from rdd.encoders._common import check_batch_size, check_images
+from rdd.encoders._runtime import torch_threads
 from rdd.encoders.base import Encoder
 from rdd.registry import register
 

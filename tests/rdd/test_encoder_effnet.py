@@ -56,5 +56,17 @@ def test_features_are_the_classifier_input(effnet):
     preprocess = make_preprocess(VARIANTS[int(effnet.name[-1])].resolution)
     img = np.random.default_rng(1).integers(0, 256, size=(2, 100, 140, 3), dtype=np.uint8)
     with torch.inference_mode():
-        expected = effnet.model(preprocess(img)).numpy()  # package forward: pool -> dropout -> fc
+        expected = effnet.model(torch.from_numpy(preprocess(img))).numpy()  # package forward: pool -> dropout -> fc
     np.testing.assert_allclose(effnet.logits(img), expected, rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize("shape", [(2, 128, 128, 3), (2, 100, 140, 3), (1, 480, 640, 3), (1, 300, 224, 3)])
+def test_numpy_preprocess_is_torchs_within_rounding(shape):
+    """The torch-free preprocess (PIL float images) gives torch's resize, crop and scale to 1e-4."""
+    pytest.importorskip("torch")
+    from rdd.encoders._effnet_lite import make_preprocess, make_torch_preprocess
+
+    img = np.random.default_rng(2).integers(0, 256, size=shape, dtype=np.uint8)
+    got, ref = make_preprocess(224)(img), make_torch_preprocess(224)(img).numpy()
+    assert got.dtype == np.float32 and got.shape == ref.shape == (shape[0], 3, 224, 224)
+    np.testing.assert_allclose(got, ref, atol=1e-4)
