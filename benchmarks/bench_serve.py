@@ -64,21 +64,24 @@ def synthetic_setup(root: Path) -> dict[str, Any]:
     return {"db": db, "frames": frames, "format": "native", "data": data, "episode": "ep4"}
 
 
-def rlbench_setup(root: Path, episodes: Path) -> dict[str, Any]:
-    """A pixels database from every RLBench episode under ``episodes`` but the last; that one's images."""
+def rlbench_setup(root: Path, episodes: Path, encoder: str = "pixels") -> dict[str, Any]:
+    """A database (``encoder``, default pixels) from every RLBench episode under ``episodes`` but the
+    last; that one's images."""
     from rdd.cli import main
     from rdd.data.rlbench import episode_names
 
     names = episode_names(episodes)
     held = names[-1]
     db = root / "db"
-    if main(["build-db", "--format", "rlbench", "--data", str(episodes), "--exclude", held, "--encoder", "pixels",
-             *ENCODER_ARGS, "--no-cache", "--out", str(db)]) != 0:
+    encoder_args = ENCODER_ARGS if encoder == "pixels" else ()
+    if main(["build-db", "--format", "rlbench", "--data", str(episodes), "--exclude", held, "--encoder", encoder,
+             *encoder_args, "--no-cache", "--out", str(db)]) != 0:
         raise RuntimeError("build-db failed")
     folder = episodes / held
     n = len(list((folder / "front_rgb").glob("*.png")))
     frames = [[str(folder / f"{v}_rgb" / f"{i}.png") for v in ("front", "wrist")] for i in range(n)]
-    return {"db": db, "frames": frames, "format": "rlbench", "data": episodes, "episode": held}
+    return {"db": db, "frames": frames, "format": "rlbench", "data": episodes, "episode": held,
+            "encoder_args": encoder_args}
 
 
 def free_port() -> int:
@@ -213,15 +216,16 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     p.add_argument("--window", type=int, default=20, help="frames per request")
     p.add_argument("--workers", type=int, default=1, help="server workers")
     p.add_argument("--method", choices=("rdd", "uvd"), default="rdd")
+    p.add_argument("--encoder", default="pixels", help="with --rlbench: the database's encoder (default pixels)")
     p.add_argument("--deadline", type=float, default=300.0, help="seconds after which no request starts")
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
-        setup = rlbench_setup(Path(tmp), args.rlbench) if args.rlbench else synthetic_setup(Path(tmp))
+        setup = rlbench_setup(Path(tmp), args.rlbench, args.encoder) if args.rlbench else synthetic_setup(Path(tmp))
         windows = windows_of(setup["frames"], args.window)
-        with Server(setup["db"], *ENCODER_ARGS, workers=args.workers) as server:
+        with Server(setup["db"], *setup.get("encoder_args", ENCODER_ARGS), workers=args.workers) as server:
             res = load_test(server.url, windows, args.clients, args.requests, args.method,
                             deadline_s=args.deadline)
-    res.update(window=args.window, workers=args.workers, method=args.method,
+    res.update(window=args.window, workers=args.workers, method=args.method, encoder=args.encoder,
                data="rlbench" if args.rlbench else "synthetic", cores=len(os.sched_getaffinity(0)))
     print(json.dumps(res, indent=1))
     return res

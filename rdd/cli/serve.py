@@ -44,10 +44,16 @@ def make_service(args: argparse.Namespace) -> DecomposeService:
                         views=rdd_decomposer.views, **uvd_options)
     except (TypeError, ValueError) as exc:
         raise UsageError(f"--uvd-option: {exc}") from exc
-    # The encoder's first call imports torch and readies its runtime (1-2 s): done here, at load,
-    # so no request pays for it.
-    rdd_decomposer.encoder.encode(np.zeros((1, 64, 64, 3), dtype=np.uint8))
-    config.update(preprocessor=config.get("encoder"), uvd_options=uvd_options, workers=args.workers)
+    encoder = rdd_decomposer.encoder
+    if getattr(encoder, "num_threads", 0) is None:
+        # The workers share the cores: ONNX Runtime fixes its threads when its session is made (the
+        # warm-up below), so an encoder left to the default gets its share before it.
+        encoder.num_threads = max(1, cores() // args.workers)
+    # The encoder's first call readies its runtime (the ONNX session; torch's import where torch
+    # runs it, 1-2 s): done here, at load, so no request pays for it.
+    encoder.encode(np.zeros((1, 64, 64, 3), dtype=np.uint8))
+    config.update(preprocessor=config.get("encoder"), uvd_options=uvd_options, workers=args.workers,
+                  encoder_threads=getattr(encoder, "num_threads", None))
     config.pop("decomposer", None)
     try:
         return DecomposeService({"rdd": rdd_decomposer, "uvd": uvd}, rdd_decomposer.views, config,

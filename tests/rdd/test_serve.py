@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 import pickle
 import urllib.error
 import urllib.request
@@ -169,7 +170,9 @@ def test_load_8_clients_x_25_requests(setup, capsys):
     """The load test on 20-frame windows with two workers: no error (the figures are printed, not asserted)."""
     windows = bench.windows_of(setup["frames"], 20)
     with bench.Server(setup["db"], *bench.ENCODER_ARGS, workers=2) as srv:
-        assert bench.call(srv.url + "/config")[1]["config"]["workers"] == 2
+        config = bench.call(srv.url + "/config")[1]["config"]
+        # the two workers share the cores: each encoder gets half of them (at least one thread)
+        assert config["workers"] == 2 and config["encoder_threads"] == max(1, len(os.sched_getaffinity(0)) // 2)
         res = bench.load_test(srv.url, windows, clients=8, per_client=25, deadline_s=240)
     with capsys.disabled():
         print(f"\nserve load test: {json.dumps(res)}")
