@@ -22,6 +22,7 @@ import numpy as np
 
 from planner.config import SLOT_SWAP_POOLS
 from planner.dataset import PlannerExample
+from planner.prompts import shift_height
 
 _WORD = re.compile(r"[A-Za-z]+")
 
@@ -63,8 +64,8 @@ def _rename(text: str | None, mapping: dict[str, str]) -> str | None:
 
 
 def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
-              pool: str = "task", vocabulary: Mapping[str, Sequence[str]] | None = None
-              ) -> list[PlannerExample]:
+              pool: str = "task", vocabulary: Mapping[str, Sequence[str]] | None = None,
+              state_jitter_cm: int = 0) -> list[PlannerExample]:
     """``examples`` followed by ``copies`` slot-renamed copies of each example that has slot words.
 
     ``pool``: rename onto the example's own task's slot words ("task") or every task's ("all").
@@ -73,6 +74,9 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
     finetuning demo used (a colour only the evaluation goal names) and a single demo per task,
     whose goal varies nothing, still gets copies. Deterministic in ``seed``. Examples without slot words (or a
     pool too small to rename them injectively) get no copies.
+    ``state_jitter_cm``: each copy states the hand's height moved by a whole number of centimetres
+    in [-k, k], so that a closed loop, whose policy stops a centimetre or two from the demo's
+    keyframe, does not meet a height the planner never read (the original keeps its own).
     """
     if copies < 0:
         raise ValueError(f"slot_swap copies must be >= 0, got {copies}")
@@ -98,7 +102,9 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
         for _ in range(copies):
             new = rng.choice(len(names), size=len(present), replace=False)
             mapping = {w: names[j] for w, j in zip(present, new, strict=True)}
+            shift = int(rng.integers(-state_jitter_cm, state_jitter_cm + 1)) if state_jitter_cm else 0
             out.append(replace(ex, goal=_rename(ex.goal, mapping),
                                previous_instruction=_rename(ex.previous_instruction, mapping),
-                               target=_rename(ex.target, mapping), scene=_rename(ex.scene, mapping)))
+                               target=_rename(ex.target, mapping), scene=_rename(ex.scene, mapping),
+                               state=shift_height(ex.state, shift)))
     return out

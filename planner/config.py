@@ -69,6 +69,9 @@ class TrainSettings:
     # from the goal instead of recalling them from a few demos; 0 = off
     slot_swap_copies: int = 0
     slot_swap_pool: str = "task"  # rename onto the task's own slot words, or "all" tasks'
+    # each slot-swapped copy states the hand's height moved by up to this many whole cm (the
+    # closed loop's policy stops a little off the demo's keyframes); 0 = the demo's own height
+    state_jitter_cm: int = 0
     # base pretraining only: also a scene caption (planner.captions) of every k-th frame of the
     # pretraining and vocabulary demos, so the base learns to read the scene; 0 = off
     caption_frame_stride: int = 0
@@ -86,6 +89,8 @@ class TrainSettings:
             raise ValueError(f"planner caption_frame_stride must be >= 0, got {self.caption_frame_stride}")
         if self.ambiguous_frame_stride < 0:
             raise ValueError(f"planner ambiguous_frame_stride must be >= 0, got {self.ambiguous_frame_stride}")
+        if self.state_jitter_cm < 0:
+            raise ValueError(f"planner state_jitter_cm must be >= 0, got {self.state_jitter_cm}")
         if self.slot_swap_copies < 0:
             raise ValueError(f"planner slot_swap_copies must be >= 0, got {self.slot_swap_copies}")
         if self.slot_swap_pool not in SLOT_SWAP_POOLS:
@@ -95,7 +100,7 @@ class TrainSettings:
     def key_dict(self) -> dict[str, Any]:
         """The settings as a cache key; options added later are left out while they are off."""
         d = _key_dict(self, {"slot_swap_copies": 0, "inner_frame_stride": 1, "caption_frame_stride": 0,
-                                 "ambiguous_frame_stride": 0})
+                                 "ambiguous_frame_stride": 0, "state_jitter_cm": 0})
         if not self.slot_swap_copies:
             d.pop("slot_swap_pool")  # meaningless without copies
         return d

@@ -11,6 +11,7 @@ the next instruction itself.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -34,6 +35,16 @@ def robot_state(ee_pose: Any, gripper_open: Any) -> str:
     z = float(np.asarray(ee_pose, dtype=np.float64).reshape(-1)[2])
     is_open = float(np.asarray(gripper_open, dtype=np.float64).reshape(-1)[0]) >= 0.5
     return f"the gripper is {'open' if is_open else 'closed'} and the hand is {round(z * 100)} cm high"
+
+
+HEIGHT = re.compile(r"(the hand is )(-?\d+)( cm high)")
+
+
+def shift_height(state: str | None, delta_cm: int) -> str | None:
+    """A :func:`robot_state` text with the hand's height moved by ``delta_cm`` whole centimetres."""
+    if state is None or not delta_cm:
+        return state
+    return HEIGHT.sub(lambda m: f"{m.group(1)}{int(m.group(2)) + int(delta_cm)}{m.group(3)}", state)
 
 
 def state_text(state: str | Mapping[str, Any] | None) -> str | None:

@@ -138,3 +138,25 @@ def test_off_keeps_the_cache_keys_of_settings_made_before_the_option():
     assert "slot_swap_copies" not in off and "slot_swap_pool" not in off
     assert TrainSettings(slot_swap_copies=2).key_dict()["slot_swap_copies"] == 2
     assert TrainSettings(slot_swap_copies=2).key_dict()["slot_swap_pool"] == "task"
+
+
+def test_state_jitter_moves_only_the_copies_hand_height_within_its_bound():
+    from dataclasses import replace
+
+    from planner.prompts import robot_state
+
+    state = robot_state([0.4, 0.0, 0.23, 0, 0, 0, 1], [0.0])  # "... the hand is 23 cm high"
+    base = [replace(ex, state=state) for ex in _buttons()]
+    plain = slot_swap(base, copies=8, seed=3)
+    jittered = slot_swap(base, copies=8, seed=3, state_jitter_cm=2)
+    assert jittered[: len(base)] == base  # the demos' own examples keep their height
+    heights = []
+    for ex in jittered[len(base):]:
+        words = ex.state.split()
+        assert words[:4] == ["the", "gripper", "is", "closed"] and words[-2:] == ["cm", "high"]
+        heights.append(int(words[-3]))
+    assert set(heights) <= {21, 22, 23, 24, 25} and len(set(heights)) > 1
+    assert all(ex.state == state for ex in plain)  # off: every copy states the demo's height
+    assert TrainSettings(state_jitter_cm=0).key_dict() == TrainSettings().key_dict()
+    with pytest.raises(ValueError, match="state_jitter_cm"):
+        TrainSettings(state_jitter_cm=-1)
