@@ -8,6 +8,9 @@
   95% bootstrap intervals over the shared seeded episodes (``experiments.report.stats``);
 - a planner table (mode=planner_eval runs): next-instruction exact match, base and finetuned;
 - a solver-speed table (mode=speed runs);
+- last, the success table (the mIoU table for the OOD ablation) again with the paper's figures in
+  a row under each method, and each row's rank here and in the paper
+  (``experiments.report.paper_compare``; the figures in ``experiments.report.paper_figures``);
 - PNG plots: success per task and method, and solver time versus frames.
 Skipped runs (e.g. an encoder without weights) are listed under the tables with their reason.
 """
@@ -21,6 +24,7 @@ from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
 
+from experiments.report.paper_compare import SPECS, beside_paper, paper_verbatim
 from experiments.report.plots import plot_miou, plot_speed, plot_success
 from experiments.report.results import RunRecord, assign_labels, load_runs
 from experiments.report.table_builders import (
@@ -81,13 +85,20 @@ def build_tables(runs: Sequence[RunRecord]) -> dict[str, list[Table]]:
     for exp, eruns in by_exp.items():
         assign_labels(eruns)
         title = TITLES.get(exp, f"Experiment {exp}")
+        success = success_table(title, eruns)
+        miou = miou_table(f"{title}: decomposition mIoU against the expert", eruns)
+        kind = SPECS[exp].kind if exp in SPECS else None
         tables = [
-            success_table(title, eruns),
+            success,
             paired_table(f"{title}: paired differences", eruns,
                          _reference(eruns, REFERENCE.get(exp, DEFAULT_REFERENCE))),
-            miou_table(f"{title}: decomposition mIoU against the expert", eruns),
+            miou,
             planner_table(f"{title}: planner next-instruction exact match", eruns),
             speed_table(f"{title}: solver time", eruns),
+            # last, so every table before it prints as it did before the paper's figures were added
+            beside_paper(exp, f"{title}: beside the paper",
+                         {"success": success, "miou": miou}.get(kind)),
+            paper_verbatim(exp, f"{title}: the paper's nearest table"),
         ]
         out[exp] = [t for t in tables if t is not None]
     return out

@@ -157,7 +157,7 @@ def test_miou_table_time_and_novelty_columns(tmp_path: Path):
         data["decomposition"]["demos"] = [{"task": "t1", "seconds": s, "novelty": n} for s, n in demos]
         path.write_text(json.dumps(data))
     md, _ = write_tables(tmp_path, tmp_path / "out")
-    miou_md = md.split("decomposition mIoU")[1]
+    miou_md = md.split("decomposition mIoU")[1].split(": beside the paper")[0]
     lines = {line.split(" | ")[0].strip("| *"): line for line in miou_md.splitlines() if line.startswith("| ")}
     assert "s / demo" in lines["Method"] and "novelty Δ" in lines["Method"]
     assert lines["rdd"].rstrip(" |").endswith("0.300 | 0.200 ± 0.141")
@@ -172,7 +172,8 @@ def test_paired_table_in_written_tables(tmp_path: Path):
         _write_run(tmp_path, f"u{seed}", "uvd", seed, {"t1": [False], "t2": [False]})
         _write_run(tmp_path, f"e{seed}", "expert", seed, {"t1": [True], "t2": [True]})
     md, _ = write_tables(tmp_path, tmp_path / "out")
-    rows = {line.split(" | ")[0].strip("| *"): line for line in md.split("paired differences")[1].splitlines()
+    paired = md.split("paired differences")[1].split(": beside the paper")[0]
+    rows = {line.split(" | ")[0].strip("| *"): line for line in paired.splitlines()
             if line.startswith("| ")}
     assert "-100.0 | [-100.0, -100.0] | **yes** | 4" in rows["uvd"]
     assert "+0.0 | [+0.0, +0.0] | no | 4" in rows["expert"]
@@ -250,3 +251,41 @@ def test_success_note_names_each_cpu_kind_its_runs_report(tmp_path: Path):
     xeon, epyc = rec("Intel Xeon", "AVX512"), rec("AMD EPYC", "AVX2")
     assert machines_note([xeon, xeon, rec(None, None)]) == " Run on: Intel Xeon (AVX512)."
     assert machines_note([xeon, epyc, xeon]) == " Run on: Intel Xeon (AVX512); AMD EPYC (AVX2)."
+
+
+def test_table_main_carries_the_papers_figures_beside_ours(tmp_path: Path):
+    # rdd 75 (open_drawer 100, stack_blocks 50), expert 100, rdd_calibrated 25; one seed;
+    # rdd's Avg. Rank (1.5 + 2) / 2
+    _write_run(tmp_path, "0", "rdd", 0, {"open_drawer": [True, True], "stack_blocks": [True, False]})
+    _write_run(tmp_path, "1", "expert", 0, {"open_drawer": [True, True], "stack_blocks": [True, True]})
+    _write_run(tmp_path, "2", "rdd_calibrated", 0,
+               {"open_drawer": [True, False], "stack_blocks": [False, False]})
+    md, _ = write_tables(tmp_path, tmp_path / "out")
+    section = md.split(": beside the paper")[1].split("###")[0]
+    lines = [line for line in section.splitlines() if line.startswith("| ")]
+    assert lines[0] == ("| Method | Figures | Rank here | Rank in paper | Avg. Succ. | Avg. Rank "
+                        "| open_drawer | stack_blocks |")
+    cells = [[c.strip() for c in line.strip("|").split("|")] for line in lines[1:]]
+    # ours, then the paper's row: Avg. from tab-main, per task from the appendix's tab-main-add
+    assert cells[0] == ["rdd", "here", "2", "2", "75.0", "1.75", "100.0", "50.0"]
+    assert cells[1] == ["RDD (Ours)", "paper", "", "", "74.9 ± 6.9", "2.2 ± 0.9", "99.2 ± 2.4",
+                        "5.2 ± 3.6"]
+    assert cells[2][:4] == ["expert", "here", "1", "1"] and cells[3][:2] == ["Expert", "paper"]
+    # no counterpart in the paper: dashes, never a number
+    assert cells[4][:4] == ["rdd_calibrated", "here", "–", "–"]
+    assert cells[5] == ["–", "paper", "", "", "–", "–", "–", "–"]
+    assert "tab-main-add" in section and "Expert 57.6 ± 3.3" in section
+    tex = (tmp_path / "out" / "table_main.tex").read_text()
+    assert r"RDD (Ours) & paper &  &  & 74.9 $\pm$ 6.9" in tex
+
+
+def test_ablation_rows_map_onto_the_papers_rows(tmp_path: Path):
+    # one-demo sets all stand beside the paper's "1 (RDD)"; alpha labels written one way
+    from experiments.report.paper_compare import SPECS, paper_row
+
+    assert paper_row(SPECS["abl_demos"], "rdd, M=1, first demo=2") == "1 (RDD)"
+    assert paper_row(SPECS["abl_demos"], "uvd") == "3 (UVD)"
+    assert paper_row(SPECS["abl_alpha"], "alpha=0.5") == "0.5"
+    assert paper_row(SPECS["abl_encoder"], "effnet_lite0") is None
+    assert paper_row(SPECS["necessity"], "other_tasks") == "w/o finetuning on target task"
+    assert paper_row(SPECS["necessity"], "expert") is None
