@@ -60,8 +60,9 @@ def test_option_composes_and_instantiates(group: str, option: str, runtime):
     from experiments.config.validate import target_callable, validate_config
     from experiments.run.graph import with_row_planner
 
-    cfg = with_row_planner(_compose([f"{group}={option}", "paths.cache_dir=/tmp/unused"]))  # as the pipeline
+    cfg = _compose([f"{group}={option}", "paths.cache_dir=/tmp/unused"])
     validate_config(cfg)  # every key of the option is a parameter of its target, of its type
+    cfg = with_row_planner(cfg)  # then the row's own planner in place, as the pipeline does
     node = cfg[group]
     if not node or not node.get("_target_"):
         assert group == "decomposer" and option in ("none", "other_tasks")  # no finetuning
@@ -111,9 +112,8 @@ def test_experiment_composes(experiment: str):
     assert cfg.hydra.runtime.choices.experiment == experiment
     OmegaConf.to_container(cfg, resolve=False)  # every node is well formed
     from experiments.config.validate import validate_config
-    from experiments.run.graph import with_row_planner
 
-    validate_config(with_row_planner(cfg))  # and every key is known and of its type (as the pipeline)
+    validate_config(cfg)  # and every key is known and of its type
 
 
 @pytest.mark.parametrize("launcher", ["local", "slurm", "slurm_local", "ray", "joblib"])
