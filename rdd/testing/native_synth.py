@@ -1,4 +1,4 @@
-"""Synthetic native episodes for tests and benchmarks: three sub-tasks of drifting colours.
+"""Synthetic native episodes for tests and benchmarks: three sub-tasks of drifting colours, or noise.
 
 Each sub-task moves the scene colour from one of three targets (red, green, blue) to the next, with a
 little per-pixel noise; the gripper is closed during the second sub-task, so the expert rule cuts
@@ -8,6 +8,7 @@ where the gripper state changes. Two views: ``front`` and its mirror image ``wri
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -32,3 +33,19 @@ def colour_episode(name: str, lengths: Sequence[int], seed: int, size: int = 16)
         start += n
     return Episode(name=name, views={"front": frames, "wrist": frames[:, ::-1].copy()}, gripper_open=grip,
                    joint_velocities=np.ones((t, 7)), goal="move the colours", task="toy")
+
+
+def write_noise_episodes(root: str | Path, count: int, gripper: Sequence[float], per_part: int,
+                         size: int = 8) -> Path:
+    """``count`` native episodes ep0.. of uniform-noise frames (episode k from seed k) under ``root``;
+    the gripper holds each value of ``gripper`` for ``per_part`` frames, so the expert rule cuts there."""
+    from rdd.data.native import save_episode
+
+    root = Path(root)
+    t = len(gripper) * per_part
+    for k in range(count):
+        frames = np.random.default_rng(k).integers(0, 255, size=(t, size, size, 3), dtype=np.uint8)
+        save_episode(Episode(name=f"ep{k}", views={"front": frames, "wrist": frames[:, ::-1].copy()},
+                             gripper_open=np.repeat(np.asarray(gripper, dtype=float), per_part),
+                             joint_velocities=np.ones((t, 7)), goal="toy", task="toy"), root / f"ep{k}")
+    return root

@@ -11,7 +11,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -38,16 +37,9 @@ def plugins(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def demos(tmp_path_factory) -> Path:
     """Three native episodes whose gripper closes for the middle third."""
-    from rdd.data.episode import Episode
-    from rdd.data.native import save_episode
+    from rdd.testing.native_synth import write_noise_episodes
 
-    root = tmp_path_factory.mktemp("demos")
-    for k in range(3):
-        frames = np.random.default_rng(k).integers(0, 255, size=(18, 16, 16, 3), dtype=np.uint8)
-        save_episode(Episode(name=f"ep{k}", views={"front": frames, "wrist": frames[:, ::-1].copy()},
-                             gripper_open=np.repeat([1.0, 0.0, 1.0], 6), joint_velocities=np.ones((18, 7)),
-                             goal="toy", task="toy"), root / f"ep{k}")
-    return root
+    return write_noise_episodes(tmp_path_factory.mktemp("demos"), 3, [1.0, 0.0, 1.0], 6, size=16)
 
 
 def run(plugins: Path, *argv: str, cwd: Path) -> subprocess.CompletedProcess:

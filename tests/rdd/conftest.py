@@ -11,7 +11,6 @@ import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from rdd.testing.lerobot_synth import (
@@ -63,6 +62,20 @@ def lerobot_factory(tmp_path):
     return make
 
 
+@pytest.fixture
+def lerobot_copy_argv(lerobot_factory, tmp_path):
+    """``argv(name)``: the CLI arguments that cut a four-episode v3.0 dataset (data files: episodes
+    0-1 and 2-3) into thirds and write its LeRobot copy to ``tmp_path / name``."""
+    src = lerobot_factory("v3.0", lengths=(30, 36, 24, 20))
+
+    def argv(name: str) -> list[str]:
+        return ["decompose", "--format", "lerobot", "--data", str(src), "--decomposer", "uniform",
+                "--option", "n_segments=3", "--fallback-instruction", "{task} ({index}/{count})",
+                "--write-lerobot", str(tmp_path / name)]
+
+    return argv
+
+
 BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
 
@@ -82,32 +95,18 @@ def benchmark_module():
 def toy_native(tmp_path_factory) -> Path:
     """``<tmp>/ds``: three 12-frame native episodes ep0-ep2 (front and wrist views; the gripper
     closes for the middle third, so the expert rule finds three sub-tasks)."""
-    from rdd.data.episode import Episode
-    from rdd.data.native import save_episode
+    from rdd.testing.native_synth import write_noise_episodes
 
-    root = tmp_path_factory.mktemp("native") / "ds"
-    for k in range(3):
-        frames = np.random.default_rng(k).integers(0, 255, size=(12, 8, 8, 3), dtype=np.uint8)
-        save_episode(Episode(name=f"ep{k}", views={"front": frames, "wrist": frames[:, ::-1].copy()},
-                             gripper_open=np.repeat([1.0, 0.0, 1.0], 4), joint_velocities=np.ones((12, 7)),
-                             goal="toy", task="toy"), root / f"ep{k}")
-    return root
+    return write_noise_episodes(tmp_path_factory.mktemp("native") / "ds", 3, [1.0, 0.0, 1.0], 4)
 
 
 @pytest.fixture(scope="session")
 def native_six(tmp_path_factory) -> Path:
     """``<tmp>/ds``: six 16-frame native episodes ep0-ep5 (front and wrist views; the gripper is closed
     for the second quarter), shared by the resume and Ray executor tests, which only read it."""
-    from rdd.data.episode import Episode
-    from rdd.data.native import save_episode
+    from rdd.testing.native_synth import write_noise_episodes
 
-    root = tmp_path_factory.mktemp("six") / "ds"
-    for k in range(6):
-        frames = np.random.default_rng(k).integers(0, 255, size=(16, 8, 8, 3), dtype=np.uint8)
-        save_episode(Episode(name=f"ep{k}", views={"front": frames, "wrist": frames[:, ::-1].copy()},
-                             gripper_open=np.repeat([1.0, 0.0, 1.0, 1.0], 4), joint_velocities=np.ones((16, 7)),
-                             goal="toy", task="toy"), root / f"ep{k}")
-    return root
+    return write_noise_episodes(tmp_path_factory.mktemp("six") / "ds", 6, [1.0, 0.0, 1.0, 1.0], 4)
 
 
 # A tqdm bar's line: "calibration:  40%|####      | 2/5 [...]".

@@ -166,16 +166,10 @@ def test_build_db_resumes_its_embedding(native_six, tmp_path, monkeypatch):
     assert not (tmp_path / ".db.parts").exists()
 
 
-def test_write_lerobot_resumes(lerobot_factory, tmp_path, monkeypatch):
+def test_write_lerobot_resumes(lerobot_copy_argv, tmp_path, monkeypatch):
     import rdd.data.lerobot.write as writer
 
-    src = lerobot_factory("v3.0", lengths=(30, 36, 24, 20))  # data files: episodes 0-1 and 2-3
-
-    def argv(name: str) -> list[str]:
-        return ["decompose", "--format", "lerobot", "--data", str(src), "--decomposer", "uniform",
-                "--option", "n_segments=3", "--fallback-instruction", "{task} ({index}/{count})",
-                "--write-lerobot", str(tmp_path / name)]
-
+    argv = lerobot_copy_argv
     assert main(argv("ref")) == 0
     rewrites: list[str] = []
     original = writer._rewrite_data_file

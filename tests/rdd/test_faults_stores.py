@@ -132,17 +132,11 @@ def test_a_damaged_resume_part_is_redone(native_six, tmp_path, caplog):
     assert out.read_bytes() == (tmp_path / "ref.json").read_bytes()
 
 
-def test_a_damaged_staged_file_of_the_lerobot_copy_is_written_again(lerobot_factory, tmp_path, monkeypatch, caplog):
+def test_a_damaged_staged_file_of_the_lerobot_copy_is_written_again(lerobot_copy_argv, tmp_path, monkeypatch, caplog):
     import rdd.data.lerobot.write as writer
     from rdd.cli import main
 
-    src = lerobot_factory("v3.0", lengths=(30, 36, 24, 20))  # data files: episodes 0-1 and 2-3
-
-    def argv(name: str) -> list[str]:
-        return ["decompose", "--format", "lerobot", "--data", str(src), "--decomposer", "uniform",
-                "--option", "n_segments=3", "--fallback-instruction", "{task} ({index}/{count})",
-                "--write-lerobot", str(tmp_path / name)]
-
+    argv = lerobot_copy_argv
     assert main(argv("ref")) == 0
     original = writer._rewrite_data_file
     done: list[str] = []
