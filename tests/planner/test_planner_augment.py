@@ -160,3 +160,56 @@ def test_state_jitter_moves_only_the_copies_hand_height_within_its_bound():
     assert TrainSettings(state_jitter_cm=0).key_dict() == TrainSettings().key_dict()
     with pytest.raises(ValueError, match="state_jitter_cm"):
         TrainSettings(state_jitter_cm=-1)
+
+
+def _ordered_buttons():
+    goal3 = "push the red button, then the green button, then the blue button"
+    return [
+        _ex("buttons", goal3, None, "move above the red button"),
+        _ex("buttons", goal3, "release the red button", "move above the green button"),
+        _ex("buttons", goal3, "push the green button", "release the green button"),
+        _ex("buttons", "push the yellow button, then the blue button", "release the yellow button",
+            "move above the blue button"),
+        _ex("buttons", "push the green button", "move above the green button", "push the green button"),
+        _ex("drawer", "open the top drawer", None, "reach for the top drawer handle"),
+        _ex("drawer", "open the bottom drawer", "grasp the bottom drawer handle",
+            "pull the bottom drawer open"),
+    ]
+
+
+def _colours(text):
+    return [w for w in text.replace(",", " ").split() if w in {"red", "green", "blue", "yellow"}]
+
+
+def test_reordered_copies_keep_the_answer_where_an_ordered_goal_puts_it():
+    base = _ordered_buttons()
+    copies = slot_swap(base, copies=60, seed=1, reorder=True)[len(base):]
+    seen = set()
+    for c in copies:
+        if c.task != "buttons":
+            assert c.goal in {"open the top drawer", "open the bottom drawer"}
+            continue
+        order = _colours(c.goal)
+        assert len(set(order)) == len(order) and order  # every colour once, one to three of them
+        assert c.goal.startswith("push the ") and c.goal.count(", then the ") == len(order) - 1
+        (answer,) = _colours(c.target)
+        if c.previous_instruction is None:
+            assert order[0] == answer  # the first step is the goal's first button
+            continue
+        (before,) = _colours(c.previous_instruction)
+        if c.previous_instruction.startswith("release"):
+            assert order.index(answer) == order.index(before) + 1  # the next button of the goal
+            seen.add((len(order), order.index(before)))
+        else:
+            assert answer == before and answer in order
+    # the released button stands first or second of a three-button goal, and first of two
+    assert seen == {(2, 0), (3, 0), (3, 1)}
+
+
+def test_reordering_needs_copies_and_stays_out_of_the_key_while_off():
+    base = _ordered_buttons()
+    assert slot_swap(base, 5, seed=4) == slot_swap(base, 5, seed=4, reorder=False)
+    assert "reorder_goals" not in TrainSettings(slot_swap_copies=2).key_dict()
+    assert TrainSettings(slot_swap_copies=2, reorder_goals=True).key_dict()["reorder_goals"] is True
+    with pytest.raises(ValueError, match="slot_swap_copies"):
+        TrainSettings(reorder_goals=True)
