@@ -123,8 +123,7 @@ def _reordered_goal(ex: PlannerExample, words: Sequence[str], shapes: Mapping[in
 
 def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
               pool: str = "task", vocabulary: Mapping[str, Sequence[str]] | None = None,
-              state_jitter_cm: int = 0, reorder: bool = False,
-              switch_copies: int = 0) -> list[PlannerExample]:
+              state_jitter_cm: int = 0, reorder: bool = False) -> list[PlannerExample]:
     """``examples`` followed by ``copies`` slot-renamed copies of each example that has slot words.
 
     ``pool``: rename onto the example's own task's slot words ("task") or every task's ("all").
@@ -137,9 +136,6 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
     in [-k, k], so that a closed loop, whose policy stops a centimetre or two from the demo's
     keyframe, does not meet a height the planner never read (the original keeps its own).
     ``reorder``: each copy's goal also takes another of its task's goal shapes (module docstring).
-    ``switch_copies``: copies instead of ``copies`` for the examples whose answer names a slot word
-    the previous instruction does not, while the previous instruction names one (the next button
-    of an ordered goal): only there must the goal be searched for the word after the last one.
     """
     if copies < 0:
         raise ValueError(f"slot_swap copies must be >= 0, got {copies}")
@@ -163,9 +159,7 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
         present = [w for w in slots.get(ex.task, []) if w in said]
         if not present or len(names) < len(present):
             continue
-        switches = bool(_words(ex.previous_instruction) & set(present)) and bool(
-            (_words(ex.target) - _words(ex.previous_instruction)) & set(present))
-        for _ in range(switch_copies if switches and switch_copies else copies):
+        for _ in range(copies):
             new = rng.choice(len(names), size=len(present), replace=False)
             mapping = {w: names[j] for w, j in zip(present, new, strict=True)}
             shift = int(rng.integers(-state_jitter_cm, state_jitter_cm + 1)) if state_jitter_cm else 0

@@ -75,9 +75,6 @@ class TrainSettings:
     # each slot-swapped copy also puts its goal's slot words into another of the task's goal
     # shapes (planner.augment): the word to find in an ordered goal moves, not only its name
     reorder_goals: bool = False
-    # copies instead of slot_swap_copies for examples that switch slot word (the answer names one
-    # the previous instruction does not: the next button of an ordered goal); 0 = as many
-    switch_copies: int = 0
     # base pretraining only: also a scene caption (planner.captions) of every k-th frame of the
     # pretraining and vocabulary demos, so the base learns to read the scene; 0 = off
     caption_frame_stride: int = 0
@@ -99,8 +96,6 @@ class TrainSettings:
             raise ValueError(f"planner state_jitter_cm must be >= 0, got {self.state_jitter_cm}")
         if self.slot_swap_copies < 0:
             raise ValueError(f"planner slot_swap_copies must be >= 0, got {self.slot_swap_copies}")
-        if self.switch_copies < 0:
-            raise ValueError(f"planner switch_copies must be >= 0, got {self.switch_copies}")
         if self.reorder_goals and not self.slot_swap_copies:
             raise ValueError("planner reorder_goals reorders slot-swapped copies: set slot_swap_copies > 0")
         if self.slot_swap_pool not in SLOT_SWAP_POOLS:
@@ -111,7 +106,7 @@ class TrainSettings:
         """The settings as a cache key; options added later are left out while they are off."""
         d = _key_dict(self, {"slot_swap_copies": 0, "inner_frame_stride": 1, "caption_frame_stride": 0,
                                  "ambiguous_frame_stride": 0, "state_jitter_cm": 0,
-                                 "reorder_goals": False, "switch_copies": 0})
+                                 "reorder_goals": False})
         if not self.slot_swap_copies:
             d.pop("slot_swap_pool")  # meaningless without copies
         return d

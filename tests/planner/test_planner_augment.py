@@ -213,18 +213,3 @@ def test_reordering_needs_copies_and_stays_out_of_the_key_while_off():
     assert TrainSettings(slot_swap_copies=2, reorder_goals=True).key_dict()["reorder_goals"] is True
     with pytest.raises(ValueError, match="slot_swap_copies"):
         TrainSettings(reorder_goals=True)
-
-
-def test_examples_that_switch_slot_word_get_their_own_number_of_copies():
-    base = _ordered_buttons()
-    out = slot_swap(base, copies=2, seed=0, switch_copies=7)[len(base):]
-    # the two "release X -> the next button" examples switch word; the first step (no previous
-    # word) and "push X -> release X" do not, nor do the drawer's
-    switching = [c for c in out if (c.previous_instruction or "").startswith("release")]
-    assert len(switching) == 2 * 7
-    assert len(out) - len(switching) == 2 * (len(base) - 2)
-    for c in switching:
-        order = _colours(c.goal)
-        assert order.index(_colours(c.target)[0]) == order.index(_colours(c.previous_instruction)[0]) + 1
-    with pytest.raises(ValueError, match="switch_copies"):
-        TrainSettings(slot_swap_copies=2, switch_copies=-1)
