@@ -9,14 +9,6 @@ of its own task (``pool="task"``) or of the whole training set (``pool="all"``),
 previous instruction and the target alike; the image is kept. The copy's answer then follows from
 the goal alone, which is what the planner must learn. The task pool keeps a colour a colour: with
 the pool of all tasks a planner that fails to copy may say "release the top button".
-
-With ``reorder`` a copy also moves its goal's slot words into another of the task's goal shapes
-(the task's goals with their slot words cut out, e.g. one, two and three buttons in order), keeping
-the previous instruction's and the answer's slot words the same distance apart and filling the
-other places with other slot words. Three demos put the button just released always first or
-second of the goal; the copies put it anywhere, so the answer ("the next one") can only be found by
-finding that word in the goal. This assumes what an ordered goal means: the slot words before the
-previous instruction's are done, those after the answer's are still to do.
 """
 
 from __future__ import annotations
@@ -71,59 +63,9 @@ def _rename(text: str | None, mapping: dict[str, str]) -> str | None:
     return _WORD.sub(lambda m: mapping.get(m.group(0), m.group(0)), text)
 
 
-def goal_shapes(examples: Sequence[PlannerExample],
-                slots: Mapping[str, Sequence[str]]) -> dict[str, dict[int, list[list[str]]]]:
-    """Per task and number of slot words, its goals split around their slot words (text, slot,
-    text, ..., text); goals naming a slot word twice are left out."""
-    shapes: dict[str, dict[int, list[list[str]]]] = defaultdict(lambda: defaultdict(list))
-    for ex in examples:
-        words = slots.get(ex.task, [])
-        if not words:
-            continue
-        parts = re.split(r"\b(" + "|".join(map(re.escape, words)) + r")\b", ex.goal)
-        named = parts[1::2]
-        if named and len(set(named)) == len(named) and parts not in shapes[ex.task][len(named)]:
-            shapes[ex.task][len(named)].append(parts)
-    return {t: dict(by_n) for t, by_n in shapes.items()}
-
-
-def _reordered_goal(ex: PlannerExample, words: Sequence[str], shapes: Mapping[int, list[list[str]]],
-                    rng: np.random.Generator) -> str | None:
-    """``ex``'s goal in a random shape of its task, the previous instruction's and the answer's
-    slot words the same distance apart; None where the example has no such anchor."""
-    order = [w for w in _WORD.findall(ex.goal) if w in words]
-    answer = [w for w in order if w in _words(ex.target)]
-    before = [w for w in order if w in _words(ex.previous_instruction)]
-    if len(set(order)) != len(order) or len(answer) != 1 or len(before) > 1:
-        return None
-    j = order.index(answer[0])
-    if before:
-        i = order.index(before[0])
-    elif ex.previous_instruction is None and j == 0:
-        i = 0  # the first step: the answer's word stays first
-    else:
-        return None
-    gap = j - i
-    lengths = [n for n in shapes if n > gap]
-    if gap < 0 or not lengths:
-        return None
-    n = int(lengths[rng.integers(len(lengths))])
-    parts = shapes[n][int(rng.integers(len(shapes[n])))]
-    start = 0 if ex.previous_instruction is None else int(rng.integers(n - gap))
-    anchors = {start: order[i], start + gap: order[j]}
-    others = [w for w in words if w not in anchors.values()]
-    if len(others) < n - len(anchors):
-        return None
-    fill = iter(rng.permutation(others).tolist())
-    named = [anchors[k] if k in anchors else next(fill) for k in range(n)]
-    out = list(parts)
-    out[1::2] = named
-    return "".join(out)
-
-
 def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
               pool: str = "task", vocabulary: Mapping[str, Sequence[str]] | None = None,
-              state_jitter_cm: int = 0, reorder: bool = False) -> list[PlannerExample]:
+              state_jitter_cm: int = 0) -> list[PlannerExample]:
     """``examples`` followed by ``copies`` slot-renamed copies of each example that has slot words.
 
     ``pool``: rename onto the example's own task's slot words ("task") or every task's ("all").
@@ -135,7 +77,6 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
     ``state_jitter_cm``: each copy states the hand's height moved by a whole number of centimetres
     in [-k, k], so that a closed loop, whose policy stops a centimetre or two from the demo's
     keyframe, does not meet a height the planner never read (the original keeps its own).
-    ``reorder``: each copy's goal also takes another of its task's goal shapes (module docstring).
     """
     if copies < 0:
         raise ValueError(f"slot_swap copies must be >= 0, got {copies}")
@@ -152,7 +93,6 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
     slots = {t: sorted(set(w) | set((vocabulary or {}).get(t, ()))) for t, w in slot_words(steps).items()}
     every = sorted(set().union(*slots.values())) if slots else []
     rng = np.random.default_rng(seed)
-    shapes = goal_shapes(steps, slots) if reorder else {}
     for ex in steps:
         names = slots.get(ex.task, []) if pool == "task" else every
         said = _words(ex.goal) | _words(ex.target) | _words(ex.previous_instruction)
@@ -163,12 +103,8 @@ def slot_swap(examples: Sequence[PlannerExample], copies: int, seed: int,
             new = rng.choice(len(names), size=len(present), replace=False)
             mapping = {w: names[j] for w, j in zip(present, new, strict=True)}
             shift = int(rng.integers(-state_jitter_cm, state_jitter_cm + 1)) if state_jitter_cm else 0
-            copy = replace(ex, goal=_rename(ex.goal, mapping),
-                           previous_instruction=_rename(ex.previous_instruction, mapping),
-                           target=_rename(ex.target, mapping), scene=_rename(ex.scene, mapping),
-                           state=shift_height(ex.state, shift))
-            if ex.task in shapes:
-                goal = _reordered_goal(copy, names, shapes[ex.task], rng)
-                copy = copy if goal is None else replace(copy, goal=goal)
-            out.append(copy)
+            out.append(replace(ex, goal=_rename(ex.goal, mapping),
+                               previous_instruction=_rename(ex.previous_instruction, mapping),
+                               target=_rename(ex.target, mapping), scene=_rename(ex.scene, mapping),
+                               state=shift_height(ex.state, shift)))
     return out

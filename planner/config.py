@@ -72,9 +72,6 @@ class TrainSettings:
     # each slot-swapped copy states the hand's height moved by up to this many whole cm (the
     # closed loop's policy stops a little off the demo's keyframes); 0 = the demo's own height
     state_jitter_cm: int = 0
-    # each slot-swapped copy also puts its goal's slot words into another of the task's goal
-    # shapes (planner.augment): the word to find in an ordered goal moves, not only its name
-    reorder_goals: bool = False
     # base pretraining only: also a scene caption (planner.captions) of every k-th frame of the
     # pretraining and vocabulary demos, so the base learns to read the scene; 0 = off
     caption_frame_stride: int = 0
@@ -96,8 +93,6 @@ class TrainSettings:
             raise ValueError(f"planner state_jitter_cm must be >= 0, got {self.state_jitter_cm}")
         if self.slot_swap_copies < 0:
             raise ValueError(f"planner slot_swap_copies must be >= 0, got {self.slot_swap_copies}")
-        if self.reorder_goals and not self.slot_swap_copies:
-            raise ValueError("planner reorder_goals reorders slot-swapped copies: set slot_swap_copies > 0")
         if self.slot_swap_pool not in SLOT_SWAP_POOLS:
             raise ValueError(f"planner slot_swap_pool must be one of {SLOT_SWAP_POOLS}, "
                              f"got {self.slot_swap_pool!r}")
@@ -105,8 +100,7 @@ class TrainSettings:
     def key_dict(self) -> dict[str, Any]:
         """The settings as a cache key; options added later are left out while they are off."""
         d = _key_dict(self, {"slot_swap_copies": 0, "inner_frame_stride": 1, "caption_frame_stride": 0,
-                                 "ambiguous_frame_stride": 0, "state_jitter_cm": 0,
-                                 "reorder_goals": False})
+                                 "ambiguous_frame_stride": 0, "state_jitter_cm": 0})
         if not self.slot_swap_copies:
             d.pop("slot_swap_pool")  # meaningless without copies
         return d

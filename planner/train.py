@@ -134,8 +134,7 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
         raise ValueError(f"{desc}: no training examples")
     set_seed(settings.seed)
     examples = slot_swap(examples, settings.slot_swap_copies, settings.seed,
-                         settings.slot_swap_pool, vocabulary, settings.state_jitter_cm,
-                         settings.reorder_goals)
+                         settings.slot_swap_pool, vocabulary, settings.state_jitter_cm)
     accelerator = Accelerator(cpu=not torch.cuda.is_available(),
                               gradient_accumulation_steps=settings.grad_accum)
     encoded = [encode_example(processor, ex) for ex in examples]
