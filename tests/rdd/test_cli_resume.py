@@ -21,6 +21,7 @@ from rdd.cli import main
 from rdd.data.native import load_episode
 from rdd.decomposers.uniform import UniformDecomposer
 from rdd.decomposers.uvd import UVDDecomposer
+from rdd.testing.trees import tree_bytes
 
 ROOT = Path(__file__).resolve().parents[2]
 NAMES = [f"ep{k}" for k in range(6)]  # the episodes of the native_six fixture
@@ -134,10 +135,6 @@ def test_two_workers_write_the_same_bytes(native_six, tmp_path, capsys):
     capsys.readouterr()
     assert main([*uvd_args(native_six, tmp_path / "x.json", None), "--workers", "0"]) == 2
     assert "--workers 0: must be >= 1" in capsys.readouterr().err
-
-
-def tree_bytes(folder: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 def test_build_db_resumes_its_embedding(native_six, tmp_path, monkeypatch):

@@ -15,6 +15,7 @@ from rdd.data.episode import Episode
 from rdd.data.native import save_episode
 from rdd.decomposers.uvd import UVDDecomposer
 from rdd.progress import EpisodeBar
+from rdd.testing.trees import tree_bytes
 
 INSTALL = "make install-cluster"
 NAMES = [f"ep{k}" for k in range(6)]  # the episodes of the native_six fixture
@@ -28,10 +29,6 @@ def uvd(data: Path, out: Path, fmt: str = "native") -> list[str]:
 def build(data: Path, out: Path) -> list[str]:
     return ["build-db", "--format", "native", "--data", str(data), "--encoder", "pixels", "--encoder-option",
             "size=4", "--no-cache", "--calibration-sample", "2", "--out", str(out)]
-
-
-def tree_bytes(folder: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 def parts_of(out: Path) -> list[Path]:
