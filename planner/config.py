@@ -75,9 +75,6 @@ class TrainSettings:
     # base pretraining only: also a scene caption (planner.captions) of every k-th frame of the
     # pretraining and vocabulary demos, so the base learns to read the scene; 0 = off
     caption_frame_stride: int = 0
-    # base pretraining only: this many ordered-list questions (planner.exercises) in the
-    # pretraining demos' words, the lookup an ordered goal asks of the language model; 0 = off
-    list_exercises: int = 0
 
     def __post_init__(self) -> None:
         if self.schedule not in SCHEDULES:
@@ -92,8 +89,6 @@ class TrainSettings:
             raise ValueError(f"planner caption_frame_stride must be >= 0, got {self.caption_frame_stride}")
         if self.ambiguous_frame_stride < 0:
             raise ValueError(f"planner ambiguous_frame_stride must be >= 0, got {self.ambiguous_frame_stride}")
-        if self.list_exercises < 0:
-            raise ValueError(f"planner list_exercises must be >= 0, got {self.list_exercises}")
         if self.state_jitter_cm < 0:
             raise ValueError(f"planner state_jitter_cm must be >= 0, got {self.state_jitter_cm}")
         if self.slot_swap_copies < 0:
@@ -105,8 +100,7 @@ class TrainSettings:
     def key_dict(self) -> dict[str, Any]:
         """The settings as a cache key; options added later are left out while they are off."""
         d = _key_dict(self, {"slot_swap_copies": 0, "inner_frame_stride": 1, "caption_frame_stride": 0,
-                                 "ambiguous_frame_stride": 0, "state_jitter_cm": 0,
-                                 "list_exercises": 0})
+                                 "ambiguous_frame_stride": 0, "state_jitter_cm": 0})
         if not self.slot_swap_copies:
             d.pop("slot_swap_pool")  # meaningless without copies
         return d

@@ -70,11 +70,6 @@ class LlavaPlanner:
         examples = self.examples(episodes, self.config.pretrain)
         if self.config.describe_scene:
             examples = with_true_scenes(examples, episodes)
-        if self.config.pretrain.list_exercises:
-            from planner.exercises import list_exercises
-
-            examples = [*examples, *list_exercises(examples, self.config.pretrain.list_exercises,
-                                                   self.config.pretrain.seed)]
         stride = self.config.pretrain.caption_frame_stride
         captions = [] if not stride else [
             *caption_examples(episodes, stride, self.config.view),
