@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -220,12 +219,6 @@ def long_database(db: Any, data: Path, size: int, out: Path, views: Sequence[str
 
 def machine() -> str:
     """CPU model, cores this process may use, of how many."""
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{model}, {len(os.sched_getaffinity(0))} of {os.cpu_count()} cores"
+    from rdd.machine import cpu_model
+
+    return f"{cpu_model()}, {len(os.sched_getaffinity(0))} of {os.cpu_count()} cores"

@@ -9,6 +9,8 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from rdd.machine import cpu_model
+
 
 def hydra_info() -> tuple[Path | None, dict[str, Any], list[str], bool, int]:
     """(output dir, group choices, task overrides, is multirun, parallel jobs) from Hydra if active."""
@@ -71,15 +73,3 @@ def hardware() -> dict[str, Any]:
         "torch": torch.__version__,
         "cuda": bool(torch.cuda.is_available()),
     }
-
-
-def cpu_model() -> str:
-    """The CPU's model name (Linux ``/proc/cpuinfo``; else what ``platform`` knows)."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
