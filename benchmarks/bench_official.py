@@ -112,10 +112,9 @@ def short_rounds(args: argparse.Namespace, db_dir: Path, official: Official) -> 
 
 def server_rounds(args: argparse.Namespace, db_dir: Path) -> dict:
     """Row 1: warm requests for the short episode to our server, started and stopped here."""
-    folder = args.data / args.query
-    n = len(list((folder / "front_rgb").glob("*.png")))
-    paths = [[str(folder / f"{v}_rgb" / f"{i}.png") for v in VIEWS] for i in range(n)]
-    body = {"paths": paths, "method": "rdd"}
+    from rdd.data.rlbench import image_paths
+
+    body = {"paths": image_paths(args.data / args.query, VIEWS), "method": "rdd"}
     with Server(db_dir, "--no-calibration", workers=1, start_s=300) as server:
         status, answer = call(server.url + "/decompose", body, timeout=600)  # warm-up: first-call costs
         if status != 200:

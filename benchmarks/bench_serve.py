@@ -68,7 +68,7 @@ def rlbench_setup(root: Path, episodes: Path, encoder: str = "pixels") -> dict[s
     """A database (``encoder``, default pixels) from every RLBench episode under ``episodes`` but the
     last; that one's images."""
     from rdd.cli import main
-    from rdd.data.rlbench import episode_names
+    from rdd.data.rlbench import episode_names, image_paths
 
     names = episode_names(episodes)
     held = names[-1]
@@ -77,9 +77,7 @@ def rlbench_setup(root: Path, episodes: Path, encoder: str = "pixels") -> dict[s
     if main(["build-db", "--format", "rlbench", "--data", str(episodes), "--exclude", held, "--encoder", encoder,
              *encoder_args, "--no-cache", "--out", str(db)]) != 0:
         raise RuntimeError("build-db failed")
-    folder = episodes / held
-    n = len(list((folder / "front_rgb").glob("*.png")))
-    frames = [[str(folder / f"{v}_rgb" / f"{i}.png") for v in ("front", "wrist")] for i in range(n)]
+    frames = image_paths(episodes / held, ("front", "wrist"))
     return {"db": db, "frames": frames, "format": "rlbench", "data": episodes, "episode": held,
             "encoder_args": encoder_args}
 

@@ -152,7 +152,7 @@ def long_episode(data: Path, frames: int, out: Path, views: Sequence[str]) -> tu
     from rdd.data.episode import Episode
     from rdd.data.load import load_episodes
     from rdd.data.native import save_episode
-    from rdd.data.rlbench import episode_names
+    from rdd.data.rlbench import episode_names, image_paths
 
     names = episode_names(data)
     order = [names[k % len(names)] for k in range(frames)]  # more than enough episodes
@@ -164,9 +164,10 @@ def long_episode(data: Path, frames: int, out: Path, views: Sequence[str]) -> tu
             break
         ep = load_episodes("rlbench", data, names=[name])[0]
         n = min(left, ep.num_frames)
-        for v in views:
+        paths = image_paths(data / name, views, n)
+        for j, v in enumerate(views):
             parts[v].append(ep.frames(v, np.arange(n)))
-            files[v] += [str(data / name / f"{v}_rgb" / f"{i}.png") for i in range(n)]
+            files[v] += [frame[j] for frame in paths]
         left -= n
     episode = Episode(name="long", views={v: np.concatenate(p) for v, p in parts.items()},
                       goal="open the drawer", task="open_drawer")

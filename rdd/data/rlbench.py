@@ -158,6 +158,16 @@ def available_views(directory: str | Path) -> list[str]:
     return sorted(p.name[: -len("_rgb")] for p in Path(directory).glob("*_rgb") if p.is_dir())
 
 
+def image_paths(directory: str | Path, views: Sequence[str] = ("front", "wrist"),
+                num_frames: int | None = None) -> list[list[str]]:
+    """Each frame's image files, one per view (``<directory>/<view>_rgb/<i>.png``), frame by frame;
+    ``num_frames`` defaults to the PNGs in the first view's folder. Nothing is opened."""
+    directory = Path(directory)
+    if num_frames is None:
+        num_frames = len(list((directory / f"{views[0]}_rgb").glob("*.png")))
+    return [[str(directory / f"{v}_rgb" / f"{i}.png") for v in views] for i in range(num_frames)]
+
+
 def _view_frames(directory: Path, view: str, num_frames: int) -> ImageFileFrames:
     folder = directory / f"{view}_rgb"
     if not folder.is_dir():

@@ -7,7 +7,13 @@ import pickle
 import numpy as np
 import pytest
 
-from rdd.data.rlbench import RestrictedUnpickler, load_episode, load_episodes, restricted_load
+from rdd.data.rlbench import (
+    RestrictedUnpickler,
+    image_paths,
+    load_episode,
+    load_episodes,
+    restricted_load,
+)
 
 
 class Exploit:
@@ -48,6 +54,29 @@ def test_missing_files_are_named(tmp_path):
         load_episode(tmp_path)
     with pytest.raises(FileNotFoundError, match="no RLBench episodes"):
         load_episodes(tmp_path)
+
+
+def test_image_paths_frame_by_frame(tmp_path):
+    """Each frame's files, one per view in the order asked, frames in number order (10 after 9)."""
+    for view in ("front", "wrist"):
+        (tmp_path / f"{view}_rgb").mkdir()
+        for i in range(12):
+            (tmp_path / f"{view}_rgb" / f"{i}.png").write_bytes(b"")  # never opened
+    paths = image_paths(tmp_path)
+    assert len(paths) == 12
+    assert paths[10] == [str(tmp_path / "front_rgb/10.png"), str(tmp_path / "wrist_rgb/10.png")]
+    assert image_paths(tmp_path, ("wrist",), 2) == [[str(tmp_path / "wrist_rgb/0.png")],
+                                                    [str(tmp_path / "wrist_rgb/1.png")]]
+    assert image_paths(tmp_path, ("overhead", "front")) == []  # frames counted in the first view's folder
+
+
+def test_image_paths_are_the_readers_files(real_data):
+    folder = real_data("rlbench") / "open_drawer/all_variations/episodes/episode0"
+    ep = load_episode(folder)
+    paths = image_paths(folder)
+    assert len(paths) == ep.num_frames
+    for j, view in enumerate(("front", "wrist")):
+        assert [frame[j] for frame in paths] == [str(p) for p in ep.views[view].paths]
 
 
 def test_real_episodes(real_data):
