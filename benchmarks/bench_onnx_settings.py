@@ -6,7 +6,8 @@ The baseline is the library before issue 65's encoding step: torch preprocessing
 antialiased resize, crop), batch 32, every core, ORT_ENABLE_ALL, memory arena on, no spinning. Each
 other row changes one thing: numpy/PIL preprocessing (the library's now), uint8 resize before the
 float conversion (rejected: see the cosine), batch size, a static batch axis, threads, graph optimisation level, arena,
-spinning; the last rows time whole views of a real episode read from disk, decoded ahead of the
+spinning, OpenVINO's CPU runtime in fp32 and bf16 where ``openvino`` is installed (not a dependency:
+neither is adopted, docs/cli.md); the last rows time whole views of a real episode read from disk, decoded ahead of the
 encoder (the library's ``encode_view``) or first and then encoded. Rounds interleave the rows so a
 busy machine slows them alike; each keeps its best round. Printed: images/s, ratio to the baseline,
 min per-frame cosine to the baseline's embeddings. Frames: RLBench ``open_drawer`` episode0 from
@@ -68,6 +69,29 @@ def session(path: Path | bytes, threads: int, level: str = "ALL", arena: bool = 
     return ort.InferenceSession(path if isinstance(path, bytes) else str(path), so, providers=["CPUExecutionProvider"])
 
 
+def openvino_rows(path: Path, threads: int, pre, frames: np.ndarray) -> dict:
+    """OpenVINO's CPU runtime on the same graph, fp32 and (where the CPU has it) bf16, batch 32;
+    empty, with a line saying so, when ``openvino`` is not installed."""
+    try:
+        import openvino
+    except ImportError:
+        print("openvino rows skipped: pip install openvino to time them")
+        return {}
+    core = openvino.Core()
+    model = core.read_model(str(path))
+    precisions = ["f32"] + (["bf16"] if "BF16" in core.get_property("CPU", "OPTIMIZATION_CAPABILITIES") else [])
+    rows = {}
+    for precision in precisions:
+        request = core.compile_model(model, "CPU", {"PERFORMANCE_HINT": "LATENCY", "INFERENCE_NUM_THREADS": threads,
+                                                    "INFERENCE_PRECISION_HINT": precision}).create_infer_request()
+
+        def run(request=request) -> np.ndarray:
+            return np.concatenate([request.infer({0: np.ascontiguousarray(pre(frames[s : s + 32]))})[0].copy()
+                                   for s in range(0, len(frames), 32)])
+        rows[f"OpenVINO {openvino.__version__.split('-')[0]} {precision}, numpy, batch 32"] = run
+    return rows
+
+
 def runner(pre, sess, batch: int, frames: np.ndarray):
     """A function encoding ``frames`` with preprocessing ``pre`` and ``sess``, ``batch`` at a time."""
     def run() -> np.ndarray:
@@ -122,6 +146,7 @@ def main() -> None:
         rows[f"numpy, batch 32, ORT_ENABLE_{level}"] = runner(np_pre, session(path, cores, level), 32, frames)
     rows["numpy, batch 32, no memory arena"] = runner(np_pre, session(path, cores, arena=False), 32, frames)
     rows["numpy, batch 32, spinning threads"] = runner(np_pre, session(path, cores, spinning=True), 32, frames)
+    rows.update(openvino_rows(path, cores, np_pre, frames))
     if episode is not None:
         enc = load_encoder(args.encoder, num_threads=cores)
         enc.encode(frames[:2])
