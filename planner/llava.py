@@ -55,13 +55,15 @@ class LlavaPlanner:
                                  read_state=self.config.read_state)
 
     def pretrain(self, episodes: Sequence, out_dir: Path, *, extra_corpus: Sequence[str] = (),
-                 vocabulary_episodes: Sequence = (), progress: bool = True) -> Path:
+                 vocabulary_episodes: Sequence = (), progress: bool = True,
+                 checkpoint_dir: Path | None = None) -> Path:
         """The base planner in ``out_dir`` (a tiny model trained here) or the real checkpoint's folder.
 
         ``vocabulary_episodes``: labelled episodes whose words the base knows without training on
         them (their slot words join the finetune's slot swapping); with ``caption_frame_stride``
         their frames, like the pretraining demos', are captioned (scene facts, no instruction)
         where they carry a simulator record (real robot episodes are only read for their words).
+        ``checkpoint_dir``: where training saves its state, so a killed job goes on from there.
         """
         from planner.augment import slot_vocabulary
         from planner.captions import caption_examples, with_true_scenes
@@ -76,11 +78,13 @@ class LlavaPlanner:
             *caption_examples(vocabulary_episodes, stride, self.config.view, skip_unrecorded=True)]
         return pretrain_base(self.config, examples, out_dir, captions=captions,
                              extra_corpus=list(extra_corpus),
-                             slot_vocabulary=slot_vocabulary(vocabulary_episodes), progress=progress)
+                             slot_vocabulary=slot_vocabulary(vocabulary_episodes), progress=progress,
+                             checkpoint_dir=checkpoint_dir)
 
     def finetune(self, base_dir: Path, episodes: Sequence, out_dir: Path, *, seed: int,
-                 progress: bool = True) -> Path:
-        """The LoRA adapter of the base in ``base_dir`` trained on ``episodes``, in ``out_dir``."""
+                 progress: bool = True, checkpoint_dir: Path | None = None) -> Path:
+        """The LoRA adapter of the base in ``base_dir`` trained on ``episodes``, in ``out_dir``
+        (``checkpoint_dir``: where training saves its state, so a killed job goes on from there)."""
         from planner.train import finetune_lora
 
         examples = self.examples(episodes, self.config.finetune)
@@ -90,7 +94,8 @@ class LlavaPlanner:
             # the base describes the demos' frames as it will describe the robot's at run time
             # (no simulator record needed: real demonstrations work the same way)
             examples = VLMPlanner(self.config, base_dir).with_scenes(examples)
-        return finetune_lora(self.config, base_dir, examples, out_dir, seed=seed, progress=progress)
+        return finetune_lora(self.config, base_dir, examples, out_dir, seed=seed, progress=progress,
+                             checkpoint_dir=checkpoint_dir)
 
     def load(self, base_dir: Path, adapter_dir: Path | None = None, describer=None):
         """The trained planner (:class:`planner.planner.VLMPlanner`): the base, plus the adapter if given.

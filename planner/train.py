@@ -18,6 +18,7 @@ from pathlib import Path
 import torch
 
 from planner.augment import slot_swap
+from planner.checkpoint import EVERY_S, load_done, load_state, save_done, save_state
 from planner.config import PlannerConfig, TrainSettings
 from planner.dataset import (
     PlannerCollator,
@@ -44,6 +45,10 @@ VOCABULARY_FILE = "slot_vocabulary.json"
 
 def _json_text(obj) -> str:
     return json.dumps(obj, indent=2, sort_keys=True, default=str)
+
+
+def _within(folder: str | Path | None, name: str) -> Path | None:
+    return None if folder is None else Path(folder) / name
 
 
 def _fresh_dir(out_dir: str | Path) -> Path:
@@ -123,8 +128,13 @@ def pick_train_dtype(model, batch: dict, choice: str, repeats: int = 2) -> tuple
 
 def _train(model, processor, examples: Sequence[PlannerExample], settings: TrainSettings,
            desc: str, progress: bool, vocabulary: dict[str, list[str]] | None = None,
-           train_dtype: str = "float32") -> dict:
-    """The one training loop of both stages: AdamW, warm-up + schedule, accelerate placement."""
+           train_dtype: str = "float32", checkpoint: Path | None = None) -> dict:
+    """The one training loop of both stages: AdamW, warm-up + schedule, accelerate placement.
+
+    ``checkpoint``: a folder that outlives a killed job (:mod:`planner.checkpoint`): the loop saves
+    its state there every ``EVERY_S`` seconds of training and, run again, goes on from the last save
+    (a finished loop only loads its result).
+    """
     from accelerate import Accelerator
     from accelerate.utils import set_seed
     from tqdm.auto import tqdm
@@ -132,6 +142,9 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
 
     if not examples:
         raise ValueError(f"{desc}: no training examples")
+    if checkpoint is not None and (done := load_done(checkpoint, model)) is not None:
+        model.eval()
+        return done
     set_seed(settings.seed)
     examples = slot_swap(examples, settings.slot_swap_copies, settings.seed,
                          settings.slot_swap_pool, vocabulary, settings.state_jitter_cm)
@@ -139,9 +152,9 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
                               gradient_accumulation_steps=settings.grad_accum)
     encoded = [encode_example(processor, ex) for ex in examples]
     collate = PlannerCollator(processor.tokenizer.pad_token_id, padding_side="right")
+    order = torch.Generator().manual_seed(settings.seed)  # the batches' order, saved with each epoch
     loader = torch.utils.data.DataLoader(
-        encoded, batch_size=settings.batch_size, shuffle=True, collate_fn=collate,
-        generator=torch.Generator().manual_seed(settings.seed))
+        encoded, batch_size=settings.batch_size, shuffle=True, collate_fn=collate, generator=order)
     params = [p for p in model.parameters() if p.requires_grad]
     optimizer = torch.optim.AdamW(params, lr=settings.lr, weight_decay=settings.weight_decay)
     total = math.ceil(len(loader) / settings.grad_accum) * settings.epochs
@@ -151,15 +164,25 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
     model, optimizer, loader, scheduler = accelerator.prepare(model, optimizer, loader, scheduler)
     model.train()
     timed: dict[str, float] = {}
-    if train_dtype == "auto":  # a batch drawn only then: the shuffle order of fixed numerics stays
+    saved = load_state(checkpoint, model, optimizer, scheduler) if checkpoint is not None else None
+    if saved is not None:
+        order.set_state(saved["generator"])
+        accelerator.step = saved["accumulated"]
+        train_dtype = saved["train_dtype"]
+    elif train_dtype == "auto":  # a batch drawn only then: the shuffle order of fixed numerics stays
         train_dtype, timed = pick_train_dtype(model, next(iter(loader)), train_dtype)
-    losses: list[float] = []
+    first_epoch, skip = (saved["epoch"], saved["batch"]) if saved else (0, 0)
+    losses: list[float] = list(saved["losses"]) if saved else []
+    epoch_loss, n = (saved["epoch_loss"], saved["n"]) if saved else (0.0, 0)
+    done_steps = saved["steps"] if saved else 0
     start = time.process_time()
-    wall = time.perf_counter()
-    bar = tqdm(total=total, desc=desc, disable=not progress, leave=False)
-    for _epoch in range(settings.epochs):
-        epoch_loss, n = 0.0, 0
-        for batch in loader:
+    wall = last_save = time.perf_counter()
+    bar = tqdm(total=total, initial=done_steps, desc=desc, disable=not progress, leave=False)
+    for epoch in range(first_epoch, settings.epochs):
+        epoch_order = order.get_state()  # before this epoch's shuffle: a resume draws the same one
+        if not skip:
+            epoch_loss, n = 0.0, 0
+        for i, batch in enumerate(accelerator.skip_first_batches(loader, skip) if skip else loader, start=skip):
             with accelerator.accumulate(model):
                 with autocast_context(train_dtype):
                     loss = answer_loss(model, batch)
@@ -169,17 +192,29 @@ def _train(model, processor, examples: Sequence[PlannerExample], settings: Train
                 optimizer.step()
                 scheduler.step()
                 optimizer.zero_grad()
-            if accelerator.sync_gradients:
-                bar.update(1)
             epoch_loss += float(loss.detach())
             n += 1
             bar.set_postfix(loss=f"{loss.item():.3f}")
+            if accelerator.sync_gradients:
+                bar.update(1)
+                done_steps += 1
+                if checkpoint is not None and time.perf_counter() - last_save >= EVERY_S:
+                    save_state(checkpoint, model, optimizer, scheduler, {
+                        "epoch": epoch, "batch": i + 1, "generator": epoch_order, "losses": losses,
+                        "epoch_loss": epoch_loss, "n": n, "steps": done_steps, "train_dtype": train_dtype,
+                        "accumulated": accelerator.step})
+                    last_save = time.perf_counter()
+        skip = 0
         losses.append(epoch_loss / max(n, 1))
     bar.close()
     model.eval()
-    return {"epoch_losses": losses, "steps": total, "examples": len(examples), "train_dtype": train_dtype,
-            **({"seconds_per_step_measured": timed} if timed else {}),
-            "cpu_seconds": time.process_time() - start, "wall_seconds": time.perf_counter() - wall}
+    result = {"epoch_losses": losses, "steps": total, "examples": len(examples), "train_dtype": train_dtype,
+              **({"seconds_per_step_measured": timed} if timed else {}),
+              **({"resumed_at_step": saved["steps"]} if saved else {}),
+              "cpu_seconds": time.process_time() - start, "wall_seconds": time.perf_counter() - wall}
+    if checkpoint is not None:
+        save_done(checkpoint, model, result)
+    return result
 
 
 def training_examples(episodes: Iterable, settings: TrainSettings, view: str = "front",
@@ -240,7 +275,8 @@ def tokenizer_corpus(examples: Iterable[PlannerExample]) -> list[str]:
 
 def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_dir: str | Path,
                   *, captions: Sequence[PlannerExample] = (), extra_corpus: Sequence[str] = (),
-                  slot_vocabulary: dict[str, list[str]] | None = None, progress: bool = True) -> Path:
+                  slot_vocabulary: dict[str, list[str]] | None = None, progress: bool = True,
+                  checkpoint_dir: str | Path | None = None) -> Path:
     """The base planner directory: pretrained here into ``out_dir`` (tiny kinds) or the real checkpoint.
 
     ``captions`` (scene-caption examples, :mod:`planner.captions`) are trained on with the planner
@@ -250,6 +286,7 @@ def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_di
 
     ``slot_vocabulary`` (per task, the slot words of the corpus the tokenizer also saw) is saved with
     the base; LoRA finetuning renames slot words onto it (:func:`planner.augment.slot_swap`).
+    ``checkpoint_dir``: where the training loops save their state, to go on after a killed job.
     """
     if cfg.kind == "llava_next_8b":
         return resolve_checkpoint(cfg)  # pretrained elsewhere; we only finetune it
@@ -262,13 +299,14 @@ def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_di
         for name, p in model.named_parameters():
             p.requires_grad_("multi_modal_projector" in name)
         align = _train(model, processor, list(captions) or examples, cfg.align, "align projector", progress,
-                       train_dtype=cfg.train_dtype)
+                       train_dtype=cfg.train_dtype, checkpoint=_within(checkpoint_dir, "align"))
         if cfg.instruction_tuning:
             for name, p in model.named_parameters():
                 p.requires_grad_("vision_tower" not in name)
             examples = [*examples, *captions]
-            log = {"align": align, **_train(model, processor, examples, cfg.pretrain,
-                                            f"pretrain {cfg.kind}", progress, train_dtype=cfg.train_dtype)}
+            log = {"align": align, **_train(model, processor, examples, cfg.pretrain, f"pretrain {cfg.kind}",
+                                            progress, train_dtype=cfg.train_dtype,
+                                            checkpoint=_within(checkpoint_dir, "pretrain"))}
         else:
             log = {"align": align}  # the vanilla VLM: no instruction was ever trained on
     else:
@@ -277,7 +315,8 @@ def pretrain_base(cfg: PlannerConfig, examples: Sequence[PlannerExample], out_di
         processor = build_processor(cfg, tokenizer)
         model = build_tiny_model(cfg, tokenizer)
         out = _fresh_dir(out_dir)
-        log = _train(model, processor, examples, cfg.pretrain, f"pretrain {cfg.kind}", progress)
+        log = _train(model, processor, examples, cfg.pretrain, f"pretrain {cfg.kind}", progress,
+                     checkpoint=_within(checkpoint_dir, "pretrain"))
     save_model(model, processor, out)
     write_json_atomic(out / VOCABULARY_FILE, dict(slot_vocabulary or {}), dumps=_json_text)
     write_json_atomic(out / LOG_FILE, log, dumps=_json_text)
@@ -300,8 +339,10 @@ def lora_config(cfg: PlannerConfig):
 
 
 def finetune_lora(cfg: PlannerConfig, base_dir: str | Path, examples: Sequence[PlannerExample],
-                  out_dir: str | Path, *, seed: int | None = None, progress: bool = True) -> Path:
-    """LoRA-finetune the base in ``base_dir`` on ``examples``; the adapter goes into ``out_dir``."""
+                  out_dir: str | Path, *, seed: int | None = None, progress: bool = True,
+                  checkpoint_dir: str | Path | None = None) -> Path:
+    """LoRA-finetune the base in ``base_dir`` on ``examples``; the adapter goes into ``out_dir``
+    (``checkpoint_dir``: where the loop saves its state, to go on after a killed job)."""
     from peft import get_peft_model
 
     base_dir = Path(base_dir)
@@ -319,7 +360,7 @@ def finetune_lora(cfg: PlannerConfig, base_dir: str | Path, examples: Sequence[P
     vocab_file = base_dir / VOCABULARY_FILE  # absent for a real checkpoint: the demos' words only
     vocabulary = json.loads(vocab_file.read_text()) if vocab_file.is_file() else None
     log = _train(model, processor, examples, settings, f"lora {cfg.kind}", progress, vocabulary,
-                 train_dtype=cfg.train_dtype)
+                 train_dtype=cfg.train_dtype, checkpoint=_within(checkpoint_dir, "lora"))
     model.save_pretrained(out, safe_serialization=True)
     write_json_atomic(out / LOG_FILE, log, dumps=_json_text)
     write_json_atomic(out / CONFIG_FILE, {"stage": "lora", "config": cfg.to_dict(),  # written last

@@ -118,6 +118,10 @@ class StageCache:
         """Directory of a finished stage entry."""
         return self.root / stage / key
 
+    def progress_path(self, stage: str, key: str) -> Path:
+        """Where a resumable build of (stage, key) keeps what it saved so far (kept across kills)."""
+        return self.root / stage / f".{key}.progress"
+
     @contextlib.contextmanager
     def lock(self, stage: str, key: str, wait: bool = True) -> Iterator[bool]:
         """Exclusive lock on (stage, key) across processes and hosts sharing the cache folder.
@@ -148,6 +152,7 @@ class StageCache:
         wait: bool = True,
         code: tuple[str, ...] = (),
         uses: Any = None,
+        resumable: bool = False,
     ) -> tuple[Path, str] | None:
         """Directory holding ``stage``'s output for ``spec``, calling ``build(tmp_dir)`` on a miss.
 
@@ -156,7 +161,9 @@ class StageCache:
         ``wait=False``: None at once when the entry is missing and another job is building it.
         ``code``: source files beyond what the stage's builders import (e.g. one task's modules) in
         its key; ``uses``: config nodes of components it runs that its spec does not hold (their
-        ``_target_`` modules join its code key).
+        ``_target_`` modules join its code key). ``resumable``: ``build(tmp_dir, progress_dir)``, where
+        ``progress_dir`` (:meth:`progress_path`) outlives a killed build, so the same key built again
+        goes on from what it saved there; it is removed once the entry is finished.
         """
         fingerprint = self.codes.key(stage, code, spec, uses)
         # Made canonical once: the key hashes it, and a built entry records it as its spec file.
@@ -170,7 +177,12 @@ class StageCache:
                 if not held:
                     return None
                 if not (final / SPEC_FILE).is_file():  # another job may have built it meanwhile
-                    cached = self._build(final, spec, build)
+                    if resumable:
+                        progress = self.progress_path(stage, key)
+                        cached = self._build(final, spec, lambda tmp: build(tmp, progress))
+                        shutil.rmtree(progress, ignore_errors=True)
+                    else:
+                        cached = self._build(final, spec, build)
         self._record(timing_name or stage, time.perf_counter() - start, cached)
         return final, key
 

@@ -264,17 +264,22 @@ def load_policy(policy_cfg: DictConfig, path: Path, text_cache: Path):
 # --- planner ---------------------------------------------------------------------------------------
 # ``planner`` below is the run's learned planner (``planner.llava``: its settings and training steps),
 # built once from the config by ``Run.learned_planner``.
-def pretrain_planner(planner, episodes, corpus: Sequence[str], out: Path, vocabulary_episodes=()) -> None:
+def pretrain_planner(planner, episodes, corpus: Sequence[str], out: Path, vocabulary_episodes=(),
+                     checkpoint_dir: Path | None = None) -> None:
     """Pretrain the base planner on the pretraining tasks' demos (its tokenizer also sees ``corpus``;
-    the slot words of ``vocabulary_episodes`` are saved with it for the finetune's slot swapping)."""
+    the slot words of ``vocabulary_episodes`` are saved with it for the finetune's slot swapping;
+    training saves its state in ``checkpoint_dir`` to go on after a killed job)."""
     path = planner.pretrain(episodes, out, extra_corpus=list(corpus), vocabulary_episodes=list(vocabulary_episodes),
-                            progress=progress_enabled())
+                            progress=progress_enabled(), checkpoint_dir=checkpoint_dir)
     write_json_atomic(out / PLANNER_FILE, {"base": _relative(path, out)})
 
 
-def finetune_planner(planner, base_dir: Path, episodes, seed: int, out: Path) -> None:
-    """LoRA-finetune the base planner on demonstrations carrying their decomposition and labels."""
-    path = planner.finetune(_resolve(base_dir), episodes, out, seed=seed, progress=progress_enabled())
+def finetune_planner(planner, base_dir: Path, episodes, seed: int, out: Path,
+                     checkpoint_dir: Path | None = None) -> None:
+    """LoRA-finetune the base planner on demonstrations carrying their decomposition and labels
+    (training saves its state in ``checkpoint_dir`` to go on after a killed job)."""
+    path = planner.finetune(_resolve(base_dir), episodes, out, seed=seed, progress=progress_enabled(),
+                            checkpoint_dir=checkpoint_dir)
     write_json_atomic(out / PLANNER_FILE, {"adapter": _relative(path, out)})
 
 

@@ -81,8 +81,8 @@ def base_planner_dir(run: Run) -> tuple[Path, str]:
             "vocabulary": vocab_key}
     return run.cache.get_or_build(
         "planner_base", spec,
-        lambda tmp: comp.pretrain_planner(run.learned_planner(), eps, corpus, tmp, vocab_eps),
-        uses=run.node("planner"))
+        lambda tmp, saves: comp.pretrain_planner(run.learned_planner(), eps, corpus, tmp, vocab_eps, saves),
+        uses=run.node("planner"), resumable=True)
 
 
 def planner_stage(run: Run) -> tuple[Path, Path | None, str, dict[str, Any]]:
@@ -103,7 +103,8 @@ def planner_stage(run: Run) -> tuple[Path, Path | None, str, dict[str, Any]]:
             "seed": int(run.cfg.seed)}
     path, key = run.cache.get_or_build(
         "planner_finetune", spec,
-        lambda tmp: comp.finetune_planner(run.learned_planner(), base_dir, eps, int(run.cfg.seed), tmp))
+        lambda tmp, saves: comp.finetune_planner(run.learned_planner(), base_dir, eps, int(run.cfg.seed), tmp,
+                                                 saves), resumable=True)
     info["finetune"] = key
     return base_dir, path, key, info
 

@@ -68,3 +68,25 @@ def test_one_line_per_stage_says_built_or_reused(tmp_path: Path):
     assert len(lines) == 2
     assert "built 1, reused 1" in lines[0] and lines[0].split()[1] == "labels"
     assert lines[1].split()[1:3] == ["policy", "reused"] and lines[1].endswith(" s")
+
+
+def test_a_resumable_build_keeps_what_it_saved_across_a_failure(tmp_path: Path):
+    """A killed build's saves stay for the next build of the same key; a finished entry drops them."""
+    cache = StageCache(tmp_path)
+    seen: list[list[str]] = []
+
+    def build(d: Path, saves: Path, fail: bool) -> None:
+        saves.mkdir(parents=True, exist_ok=True)
+        seen.append(sorted(p.name for p in saves.iterdir()))
+        (saves / f"part{len(seen)}").write_text("saved")
+        if fail:
+            raise RuntimeError("killed")
+        (d / "out.txt").write_text("done")
+
+    with pytest.raises(RuntimeError, match="killed"):
+        cache.get_or_build("s", {"a": 1}, lambda d, s: build(d, s, True), resumable=True)
+    path, key = cache.get_or_build("s", {"a": 1}, lambda d, s: build(d, s, False), resumable=True)
+    assert seen == [[], ["part1"]]  # the second build found the first one's save
+    assert (path / "out.txt").read_text() == "done"
+    assert not cache.progress_path("s", key).exists()
+    assert cache.get_or_build("s", {"a": 1}, lambda d, s: build(d, s, True), resumable=True) == (path, key)
