@@ -26,16 +26,22 @@ EVERY_S = 300.0  # seconds of training between saves (a save of SmolLM2's full p
 
 
 def trainable_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
-    """The parameters that train, by name, copied to the CPU."""
-    return {n: p.detach().cpu().clone() for n, p in model.named_parameters() if p.requires_grad}
+    """The parameters that train, by name (torch.save writes them out; no copy on the CPU)."""
+    return {n: p.detach() for n, p in model.named_parameters() if p.requires_grad}
+
+
+def check_fits(model: torch.nn.Module, state: dict[str, torch.Tensor], where: Path) -> None:
+    """A ValueError naming ``where`` unless ``state`` holds exactly ``model``'s trainable parameters."""
+    params = {n: p for n, p in model.named_parameters() if p.requires_grad}
+    wrong = sorted(set(params) ^ set(state)) or [n for n in state if params[n].shape != state[n].shape]
+    if wrong:
+        raise ValueError(f"{where}: saved parameters do not fit this model ({wrong[0]} and {len(wrong) - 1} more)")
 
 
 def load_trainable(model: torch.nn.Module, state: dict[str, torch.Tensor], where: Path) -> None:
     """Copy ``state``'s parameters into ``model``; a ValueError naming ``where`` when they do not fit."""
+    check_fits(model, state, where)
     params = dict(model.named_parameters())
-    missing = [n for n in state if n not in params or params[n].shape != state[n].shape]
-    if missing:
-        raise ValueError(f"{where}: saved parameters do not fit this model ({missing[0]} and {len(missing) - 1} more)")
     with torch.no_grad():
         for name, value in state.items():
             params[name].copy_(value.to(params[name].device))
@@ -53,29 +59,51 @@ def _load(path: Path) -> dict[str, Any] | None:
     try:
         return torch.load(path, map_location="cpu", weights_only=False)
     except Exception as exc:  # noqa: BLE001 - a damaged save means: start over, never stop the job
-        log.warning("training save %s is unreadable (%s); starting that training from the beginning",
-                    path, str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        _discarded(path, "is unreadable", exc)
         return None
+
+
+def _discarded(path: Path, why: str, exc: BaseException) -> None:
+    log.warning("training save %s %s (%s); starting that training from the beginning",
+                path, why, str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+
+
+def _rng_state() -> dict[str, Any]:
+    cuda = torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None
+    return {"cpu": torch.get_rng_state(), "cuda": cuda}
+
+
+def _set_rng_state(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["cpu"])
+    if state["cuda"] is not None and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
 
 
 def save_state(folder: Path, model, optimizer, scheduler, progress: dict[str, Any]) -> None:
     """Save the loop's state into ``folder`` (``progress``: epoch, batch, losses, generator state...)."""
     _save(folder / STATE_FILE, {"model": trainable_state(model), "optimizer": optimizer.state_dict(),
-                                "scheduler": scheduler.state_dict(), "torch_rng": torch.get_rng_state(),
+                                "scheduler": scheduler.state_dict(), "rng": _rng_state(),
                                 "progress": progress})
 
 
 def load_state(folder: Path, model, optimizer, scheduler) -> dict[str, Any] | None:
     """Restore the last save in ``folder`` into the model, optimizer, schedule and torch's random
     state; its progress, or None when there is no usable save."""
-    state = _load(folder / STATE_FILE)
+    path = folder / STATE_FILE
+    state = _load(path)
     if state is None:
         return None
-    load_trainable(model, state["model"], folder / STATE_FILE)
-    optimizer.load_state_dict(state["optimizer"])
-    scheduler.load_state_dict(state["scheduler"])
-    torch.set_rng_state(state["torch_rng"])
-    return state["progress"]
+    try:  # everything checked or loaded into the optimizer before the model's parameters change
+        check_fits(model, state["model"], path)
+        optimizer.load_state_dict(state["optimizer"])
+        scheduler.load_state_dict(state["scheduler"])
+        progress = dict(state["progress"])
+    except (ValueError, KeyError, TypeError, RuntimeError) as exc:
+        _discarded(path, "does not fit this training", exc)
+        return None
+    load_trainable(model, state["model"], path)
+    _set_rng_state(state["rng"])
+    return progress
 
 
 def save_done(folder: Path, model, result: dict[str, Any]) -> None:
@@ -86,8 +114,13 @@ def save_done(folder: Path, model, result: dict[str, Any]) -> None:
 
 def load_done(folder: Path, model) -> dict[str, Any] | None:
     """The finished loop's log, its parameters copied into ``model``; None when it did not finish."""
-    done = _load(folder / DONE_FILE)
+    path = folder / DONE_FILE
+    done = _load(path)
     if done is None:
         return None
-    load_trainable(model, done["model"], folder / DONE_FILE)
-    return done["result"]
+    try:
+        load_trainable(model, done["model"], path)
+        return dict(done["result"])
+    except (ValueError, KeyError, TypeError) as exc:
+        _discarded(path, "does not fit this training", exc)
+        return None

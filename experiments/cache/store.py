@@ -28,7 +28,14 @@ from typing import Any
 
 from experiments.cache.code_keys import StageCodes
 from experiments.cache.locks import HEARTBEAT_S, STALE_AFTER_S, FileLock
-from rdd.atomic import TargetExistsError, atomic_dir, check_writable, leftovers, write_json_atomic
+from rdd.atomic import (
+    TargetExistsError,
+    atomic_dir,
+    check_writable,
+    leftovers,
+    remove_temporaries,
+    write_json_atomic,
+)
 
 __all__ = ["StageCache", "StageTiming", "canonical", "read_json", "spec_key"]
 
@@ -179,10 +186,13 @@ class StageCache:
                 if not (final / SPEC_FILE).is_file():  # another job may have built it meanwhile
                     if resumable:
                         progress = self.progress_path(stage, key)
+                        if progress.is_dir():
+                            remove_temporaries(progress)  # a save that a kill cut short
                         cached = self._build(final, spec, lambda tmp: build(tmp, progress))
-                        shutil.rmtree(progress, ignore_errors=True)
                     else:
                         cached = self._build(final, spec, build)
+        if resumable:  # finished: what a build saved on the way is no longer needed (nor after a kill just then)
+            shutil.rmtree(self.progress_path(stage, key), ignore_errors=True)
         self._record(timing_name or stage, time.perf_counter() - start, cached)
         return final, key
 

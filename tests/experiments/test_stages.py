@@ -90,3 +90,14 @@ def test_a_resumable_build_keeps_what_it_saved_across_a_failure(tmp_path: Path):
     assert (path / "out.txt").read_text() == "done"
     assert not cache.progress_path("s", key).exists()
     assert cache.get_or_build("s", {"a": 1}, lambda d, s: build(d, s, True), resumable=True) == (path, key)
+
+
+def test_a_finished_resumable_entry_drops_saves_left_beside_it(tmp_path: Path):
+    """Saves left by a kill between an entry's rename and their removal go at the next lookup."""
+    cache = StageCache(tmp_path)
+    path, key = cache.get_or_build("s", {"a": 1}, lambda d, s: (d / "out.txt").write_text("x"), resumable=True)
+    left = cache.progress_path("s", key)
+    left.mkdir()
+    (left / "state.pt").write_text("old")
+    assert cache.get_or_build("s", {"a": 1}, lambda d, s: None, resumable=True) == (path, key)
+    assert not left.exists() and (path / "out.txt").read_text() == "x"

@@ -120,13 +120,21 @@ def test_lora_finetune_killed_midway_goes_on_to_the_same_adapter(tmp_path, monke
     _same_weights(straight / "adapter_model.safetensors", resumed / "adapter_model.safetensors")
 
 
-def test_an_unreadable_save_starts_the_loop_over(tmp_path, examples, caplog):
+@pytest.mark.parametrize("save, why", [
+    (b"not a save", "is unreadable"),
+    ({"model": {"no.such.weight": torch.zeros(2)}, "optimizer": {}, "scheduler": {}, "rng": {}, "progress": {}},
+     "does not fit this training"),
+])
+def test_a_save_that_cannot_be_used_starts_the_loop_over(tmp_path, examples, caplog, save, why):
     torch.set_num_threads(1)
     cfg, (pre, _) = _cfg(), examples
     straight = pretrain_base(cfg, pre, tmp_path / "straight", progress=False)
     saves = tmp_path / "saves"
     (saves / "pretrain").mkdir(parents=True)
-    (saves / "pretrain" / STATE_FILE).write_bytes(b"not a save")
+    if isinstance(save, bytes):
+        (saves / "pretrain" / STATE_FILE).write_bytes(save)
+    else:
+        torch.save(save, saves / "pretrain" / STATE_FILE)
     again = pretrain_base(cfg, pre, tmp_path / "again", progress=False, checkpoint_dir=saves)
-    assert "unreadable" in caplog.text and str(saves / "pretrain" / STATE_FILE) in caplog.text
+    assert why in caplog.text and str(saves / "pretrain" / STATE_FILE) in caplog.text
     _same_weights(straight / "model.safetensors", again / "model.safetensors")
