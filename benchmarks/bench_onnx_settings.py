@@ -57,7 +57,7 @@ def static_batch(path: Path, batch: int) -> bytes:
 
 
 def session(path: Path | bytes, threads: int, level: str = "ALL", arena: bool = True, spinning: bool = False):
-    """An ONNX Runtime CPU session on ``path`` with the given settings."""
+    """Features of a preprocessed batch from an ONNX Runtime CPU session on ``path`` with the given settings."""
     import onnxruntime as ort
 
     so = ort.SessionOptions()
@@ -66,7 +66,8 @@ def session(path: Path | bytes, threads: int, level: str = "ALL", arena: bool = 
     so.enable_cpu_mem_arena = arena
     so.log_severity_level = 3
     so.add_session_config_entry("session.intra_op.allow_spinning", "1" if spinning else "0")
-    return ort.InferenceSession(path if isinstance(path, bytes) else str(path), so, providers=["CPUExecutionProvider"])
+    sess = ort.InferenceSession(path if isinstance(path, bytes) else str(path), so, providers=["CPUExecutionProvider"])
+    return lambda x: sess.run(None, {INPUT: x})[0]
 
 
 def openvino_rows(path: Path, threads: int, pre, frames: np.ndarray) -> dict:
@@ -84,18 +85,16 @@ def openvino_rows(path: Path, threads: int, pre, frames: np.ndarray) -> dict:
     for precision in precisions:
         request = core.compile_model(model, "CPU", {"PERFORMANCE_HINT": "LATENCY", "INFERENCE_NUM_THREADS": threads,
                                                     "INFERENCE_PRECISION_HINT": precision}).create_infer_request()
-
-        def run(request=request) -> np.ndarray:
-            return np.concatenate([request.infer({0: np.ascontiguousarray(pre(frames[s : s + 32]))})[0].copy()
-                                   for s in range(0, len(frames), 32)])
-        rows[f"OpenVINO {openvino.__version__.split('-')[0]} {precision}, numpy, batch 32"] = run
+        rows[f"OpenVINO {openvino.__version__.split('-')[0]} {precision}, numpy, batch 32"] = runner(
+            pre, lambda x, request=request: request.infer({0: x})[0].copy(), 32, frames)
     return rows
 
 
-def runner(pre, sess, batch: int, frames: np.ndarray):
-    """A function encoding ``frames`` with preprocessing ``pre`` and ``sess``, ``batch`` at a time."""
+def runner(pre, infer, batch: int, frames: np.ndarray):
+    """A function encoding ``frames`` with preprocessing ``pre`` and ``infer`` (a batch's features),
+    ``batch`` at a time."""
     def run() -> np.ndarray:
-        return np.concatenate([sess.run(None, {INPUT: np.ascontiguousarray(pre(frames[s : s + batch]))})[0]
+        return np.concatenate([infer(np.ascontiguousarray(pre(frames[s : s + batch])))
                                for s in range(0, len(frames), batch)])
     return run
 
