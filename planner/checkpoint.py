@@ -30,18 +30,18 @@ def trainable_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
     return {n: p.detach() for n, p in model.named_parameters() if p.requires_grad}
 
 
-def check_fits(model: torch.nn.Module, state: dict[str, torch.Tensor], where: Path) -> None:
-    """A ValueError naming ``where`` unless ``state`` holds exactly ``model``'s trainable parameters."""
+def trainable_params(model: torch.nn.Module, state: dict[str, torch.Tensor], where: Path) -> dict[str, torch.Tensor]:
+    """``model``'s trainable parameters by name; a ValueError naming ``where`` unless ``state`` holds
+    exactly them, shape for shape."""
     params = {n: p for n, p in model.named_parameters() if p.requires_grad}
     wrong = sorted(set(params) ^ set(state)) or [n for n in state if params[n].shape != state[n].shape]
     if wrong:
         raise ValueError(f"{where}: saved parameters do not fit this model ({wrong[0]} and {len(wrong) - 1} more)")
+    return params
 
 
-def load_trainable(model: torch.nn.Module, state: dict[str, torch.Tensor], where: Path) -> None:
-    """Copy ``state``'s parameters into ``model``; a ValueError naming ``where`` when they do not fit."""
-    check_fits(model, state, where)
-    params = dict(model.named_parameters())
+def copy_into(params: dict[str, torch.Tensor], state: dict[str, torch.Tensor]) -> None:
+    """Copy ``state``'s tensors into the parameters of the same names."""
     with torch.no_grad():
         for name, value in state.items():
             params[name].copy_(value.to(params[name].device))
@@ -94,14 +94,14 @@ def load_state(folder: Path, model, optimizer, scheduler) -> dict[str, Any] | No
     if state is None:
         return None
     try:  # everything checked or loaded into the optimizer before the model's parameters change
-        check_fits(model, state["model"], path)
+        params = trainable_params(model, state["model"], path)
         optimizer.load_state_dict(state["optimizer"])
         scheduler.load_state_dict(state["scheduler"])
         progress = dict(state["progress"])
     except (ValueError, KeyError, TypeError, RuntimeError) as exc:
         _discarded(path, "does not fit this training", exc)
         return None
-    load_trainable(model, state["model"], path)
+    copy_into(params, state["model"])
     _set_rng_state(state["rng"])
     return progress
 
@@ -119,7 +119,7 @@ def load_done(folder: Path, model) -> dict[str, Any] | None:
     if done is None:
         return None
     try:
-        load_trainable(model, done["model"], path)
+        copy_into(trainable_params(model, done["model"], path), done["model"])
         return dict(done["result"])
     except (ValueError, KeyError, TypeError) as exc:
         _discarded(path, "does not fit this training", exc)

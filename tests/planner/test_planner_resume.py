@@ -30,29 +30,20 @@ def _cfg() -> PlannerConfig:
                          lora=dict(r=8, alpha=16, dropout=0.1))
 
 
-def _kill_after(monkeypatch, batches: int) -> None:
-    """Every training step saves; the loop dies when it asks for batch ``batches + 1``'s loss."""
+def _counting(monkeypatch, kill_after: int | None = None) -> dict:
+    """Count the next loops' training batches (their loss computations); with ``kill_after``, every
+    training step saves and the loop dies when it asks for batch ``kill_after + 1``'s loss."""
     real, seen = train.answer_loss, {"n": 0}
 
     def loss(model, batch):
         seen["n"] += 1
-        if seen["n"] > batches:
+        if kill_after is not None and seen["n"] > kill_after:
             raise Killed
         return real(model, batch)
 
     monkeypatch.setattr(train, "answer_loss", loss)
-    monkeypatch.setattr(train, "EVERY_S", 0.0)
-
-
-def _counting(monkeypatch) -> dict:
-    """Count the training batches (the loss computations) of the next loop."""
-    real, seen = train.answer_loss, {"n": 0}
-
-    def loss(model, batch):
-        seen["n"] += 1
-        return real(model, batch)
-
-    monkeypatch.setattr(train, "answer_loss", loss)
+    if kill_after is not None:
+        monkeypatch.setattr(train, "EVERY_S", 0.0)
     return seen
 
 
@@ -82,7 +73,7 @@ def test_pretraining_killed_midway_goes_on_to_the_same_weights(tmp_path, monkeyp
 
     saves = tmp_path / "saves"
     per_epoch = _batches_per_epoch(len(pre), 4)
-    _kill_after(monkeypatch, per_epoch + 2)  # inside the second epoch
+    _counting(monkeypatch, kill_after=per_epoch + 2)  # inside the second epoch
     with pytest.raises(Killed):
         pretrain_base(cfg, pre, tmp_path / "killed", progress=False, checkpoint_dir=saves)
     assert (saves / "pretrain" / STATE_FILE).is_file() and not (saves / "pretrain" / DONE_FILE).exists()
@@ -96,7 +87,7 @@ def test_pretraining_killed_midway_goes_on_to_the_same_weights(tmp_path, monkeyp
     assert (saves / "pretrain" / DONE_FILE).is_file() and not (saves / "pretrain" / STATE_FILE).exists()
 
     # a loop that finished is not trained again: its saved result is taken as it is
-    _kill_after(monkeypatch, 0)
+    _counting(monkeypatch, kill_after=0)
     again = pretrain_base(cfg, pre, tmp_path / "again", progress=False, checkpoint_dir=saves)
     _same_weights(straight / "model.safetensors", again / "model.safetensors")
 
@@ -112,7 +103,7 @@ def test_lora_finetune_killed_midway_goes_on_to_the_same_adapter(tmp_path, monke
     assert per_epoch >= 2
 
     saves = tmp_path / "saves"
-    _kill_after(monkeypatch, 2 * per_epoch - 1)  # before the last batch of the second epoch
+    _counting(monkeypatch, kill_after=2 * per_epoch - 1)  # before the last batch of the second epoch
     with pytest.raises(Killed):
         finetune_lora(cfg, base, tune, tmp_path / "killed", seed=3, progress=False, checkpoint_dir=saves)
     monkeypatch.undo()
