@@ -2,7 +2,8 @@
 
 ``RDD_TEST_DATA`` names a folder laid out as ``rlbench/open_drawer/all_variations/episodes/episodeN``
 (RLBench's own format) and ``lerobot/<dataset>`` (LeRobot v2.1 / v3.0); see docs/testing.md.
-Also ``unwritable``: a folder this process cannot create files in, for the tests of outputs.
+Also ``unwritable``: a folder this process cannot create files in, for the tests of outputs; and
+``processes``: the live process table, for the tests of how runs stop.
 """
 
 from __future__ import annotations
@@ -31,6 +32,26 @@ def real_data() -> Callable[[str], Path]:
         return path
 
     return find
+
+
+@pytest.fixture
+def processes() -> Callable[[], list[tuple[int, int, int]]]:
+    """``processes()``: (pid, parent pid, process group) of every live process (Linux /proc), else skip."""
+    if not Path("/proc/self/stat").exists():
+        pytest.skip("reads the process table from Linux /proc")
+
+    def table() -> list[tuple[int, int, int]]:
+        out = []
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if fields[0] != "Z":
+                out.append((int(stat.parent.name), int(fields[1]), int(fields[2])))
+        return out
+
+    return table
 
 
 @pytest.fixture

@@ -104,10 +104,12 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         results["wall_seconds"] = round(time.perf_counter() - t_start, 3)
         for line in stage_lines(cache.timings):
             log.info(line)
-        write_json_atomic(out_dir / RESULTS_FILE, results)
-        tracker.log(tracker_metrics(results))
-        tracker.finish()
-        cache.close()
+        try:
+            write_json_atomic(out_dir / RESULTS_FILE, results)
+            tracker.log(tracker_metrics(results))
+            tracker.finish()
+        finally:
+            cache.close()
     summary = {
         "output_dir": str(out_dir),
         "status": results["status"],

@@ -19,6 +19,7 @@ class Tracker:
         if mode not in WANDB_MODES:
             raise ValueError(f"wandb.mode={mode!r}: choose one of {WANDB_MODES}")
         self._run = None
+        self._dir = out_dir
         if mode == "disabled":
             return
         try:
@@ -45,15 +46,38 @@ class Tracker:
         if self._run is None:
             return
         flat = {k: v for k, v in _flatten(metrics).items() if isinstance(v, int | float) and not isinstance(v, bool)}
-        self._run.log(flat)
-        for k, v in flat.items():
-            self._run.summary[k] = v
+        try:
+            self._run.log(flat)
+            for k, v in flat.items():
+                self._run.summary[k] = v
+        except Exception as exc:  # noqa: BLE001 - a tracker's failure must not become the run's
+            self._lost(exc)
 
     def finish(self) -> None:
         """Close the run (files flushed)."""
-        if self._run is not None:
+        if self._run is None:
+            return
+        try:
             self._run.finish()
-            self._run = None
+        except Exception as exc:  # noqa: BLE001 - a tracker's failure must not become the run's
+            self._lost(exc)
+        self._run = None
+
+    def _lost(self, exc: Exception) -> None:
+        """Give up on a run whose wandb service is gone, with one warning instead of the run's failure.
+
+        A scheduler's kill (slurm, ``timeout``, guard) stops wandb's service, which runs in a session
+        of its own, beside the harness: the harness's SIGTERM line and its cleanups must still come.
+        """
+        log.warning("wandb: the run's logging service is gone (%s: %s); its files under %s may be "
+                    "incomplete (results.json is not)", type(exc).__name__, exc, self._dir)
+        self._run = None
+        import wandb
+
+        try:  # unregisters wandb's exit hook, which would print the same failure's traceback at exit
+            wandb.teardown()
+        except Exception:  # noqa: BLE001 - the service is gone: there is nothing left to close
+            pass
 
 
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:

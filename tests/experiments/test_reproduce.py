@@ -124,19 +124,6 @@ def test_two_tables_killed_then_resumed_then_no_work(tmp_path: Path):
     assert {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("results.json")} == before
 
 
-def _group_members(pgid: int) -> list[int]:
-    """Live processes of process group ``pgid`` (Linux /proc)."""
-    out = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if fields[0] != "Z" and int(fields[2]) == pgid:
-            out.append(int(stat.parent.name))
-    return out
-
-
 def _sweep_pgid(out: Path) -> int | None:
     """Process group of the run.py sweep writing under ``out``, if one runs."""
     for cmd in Path("/proc").glob("[0-9]*/cmdline"):
@@ -147,8 +134,7 @@ def _sweep_pgid(out: Path) -> int | None:
     return None
 
 
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
-def test_a_terminated_driver_takes_its_sweep_with_it(tmp_path: Path):
+def test_a_terminated_driver_takes_its_sweep_with_it(tmp_path: Path, processes):
     out, cache = tmp_path / "out", tmp_path / "cache"
     driver = _driver(out, cache)
     deadline = time.time() + 120
@@ -161,9 +147,12 @@ def test_a_terminated_driver_takes_its_sweep_with_it(tmp_path: Path):
     assert driver.returncode == 130, text[-2000:]
     assert "rerun the same command to resume" in text
     deadline = time.time() + 30
-    while _group_members(pgid) and time.time() < deadline:
+    def members() -> list[int]:
+        return [pid for pid, _, group in processes() if group == pgid]
+
+    while members() and time.time() < deadline:
         time.sleep(0.2)
-    assert _group_members(pgid) == []
+    assert members() == []
 
 
 def test_a_resumed_table_counts_the_wall_time_of_every_call(tmp_path: Path, monkeypatch):

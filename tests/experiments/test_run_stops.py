@@ -96,3 +96,45 @@ def test_stops_are_one_line_after_the_cleanups(tmp_path, sig, code, line):
     # The finished stage stays; the interrupted one left no lock, no temporary folder, no entry.
     assert [p for p in left if p.startswith("second")] == ["second"], left
     assert any(p.startswith("first/") and p.endswith("done.txt") for p in left), left
+
+
+# A scheduler's kill (slurm, guard) stops wandb's service, which runs in a session of its own, beside
+# the harness; the run's own stop must still be one line, not the dead tracker's traceback.
+TRACKED = textwrap.dedent("""
+    import sys, time
+    from pathlib import Path
+    from types import SimpleNamespace
+    from experiments.run.interrupts import run_stoppable
+    from experiments.run.tracking import Tracker
+
+    wandb_cfg = SimpleNamespace(mode="offline", project="p", entity=None, group=None, tags=[])
+    tracker = Tracker(wandb_cfg, {"seed": 0}, Path(sys.argv[1]), name="stopped")
+
+    def body():
+        try:
+            print("tracking", flush=True)
+            time.sleep(60)
+        finally:
+            tracker.log({"metric": 1.0})
+            tracker.finish()
+
+    sys.exit(run_stoppable(body))
+""")
+
+
+def test_sigterm_after_the_tracker_service_died_is_still_one_line(tmp_path, processes):
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "WANDB_MODE": "offline"}
+    proc = subprocess.Popen([sys.executable, "-c", TRACKED, str(tmp_path)], env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout.readline().strip() == "tracking"
+    services = [pid for pid, parent, _ in processes() if parent == proc.pid]
+    assert services, "wandb started no service process"
+    for child in services:  # the service goes first, as when the whole job is killed
+        os.kill(child, signal.SIGKILL)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    lines = err.strip().splitlines()
+    assert proc.returncode == 143, err
+    assert lines[-1] == "terminated (SIGTERM); the stage cache keeps finished stages, rerun to resume", err
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    assert any("logging service is gone" in line and str(tmp_path) in line for line in lines[:-1]), err
