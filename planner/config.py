@@ -146,6 +146,11 @@ class PlannerConfig:
     # describe, then plan: the planner first captions the image (planner.captions; the base learns
     # it from pretrain.caption_frame_stride) and its prompt states that caption before the question
     describe_scene: bool = False
+    # describe, then plan with another model: this planner's base (pretrained with describe_scene)
+    # describes the image instead of this one's own base (e.g. a tiny LLaVA trained for many epochs
+    # on the captions for a pretrained language model that plans); its base is keyed and trained
+    # in a stage of its own, and it is shared by every planner naming the same describer
+    describer: PlannerConfig | None = None
     # The prompt states the robot's proprioceptive state (gripper, hand height), as the paper's
     # planner pi(l_t | s_t, o_t, l_{t-1}, L) reads s_t.
     read_state: bool = True
@@ -221,6 +226,14 @@ class PlannerConfig:
                 raise ValueError("planner instruction_tuning false and describe_scene true: a base "
                                  "without instruction tuning never learns to plan after its caption")
         self.image_grid_pinpoints = [[int(a) for a in p] for p in _plain(self.image_grid_pinpoints)]
+        if self.describer is not None:
+            self.describer = _coerce(PlannerConfig, self.describer, "describer")
+            if not self.describe_scene:
+                raise ValueError("planner describer needs describe_scene true (the describer's captions "
+                                 "are stated in this planner's prompts)")
+            if not self.describer.describe_scene or self.describer.describer is not None:
+                raise ValueError("planner describer must be a planner that describes scenes itself "
+                                 "(describe_scene true, no describer of its own)")
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> PlannerConfig:
@@ -235,7 +248,8 @@ class PlannerConfig:
     def model_dict(self) -> dict[str, Any]:
         """The part that determines the base model (what base pretraining is keyed by)."""
         d = self.to_dict()
-        for k in ("finetune", "lora", "max_new_tokens"):
+        # the base trains on the simulator's true captions: who describes at run time is the finetune's
+        for k in ("finetune", "lora", "max_new_tokens", "describer"):
             d.pop(k)
         d["pretrain"] = self.pretrain.key_dict()
         if self.kind == "smollm2_llava":

@@ -36,7 +36,18 @@ class LlavaPlanner:
     __signature__ = _options_signature()  # the options below, as validation and Hydra see them
 
     def __init__(self, **options: Any) -> None:
+        describer = options.get("describer")
+        if isinstance(describer, LlavaPlanner):  # Hydra builds a nested planner node as its object
+            options["describer"] = describer.config
         self.config = PlannerConfig(kind=self.kind, **options)
+
+    def describer(self) -> LlavaPlanner | None:
+        """The planner whose base describes scenes for this one (``describer``); None: its own base does."""
+        cfg = self.config.describer
+        if cfg is None:
+            return None
+        cls = next(c for c in _planner_classes() if c.kind == cfg.kind)
+        return cls(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name != "kind"})
 
     @property
     def view(self) -> str:
@@ -82,26 +93,29 @@ class LlavaPlanner:
                              checkpoint_dir=checkpoint_dir)
 
     def finetune(self, base_dir: Path, episodes: Sequence, out_dir: Path, *, seed: int,
-                 progress: bool = True, checkpoint_dir: Path | None = None) -> Path:
+                 progress: bool = True, checkpoint_dir: Path | None = None, describer=None) -> Path:
         """The LoRA adapter of the base in ``base_dir`` trained on ``episodes``, in ``out_dir``
-        (``checkpoint_dir``: where training saves its state, so a killed job goes on from there)."""
+        (``checkpoint_dir``: where training saves its state, so a killed job goes on from there;
+        ``describer``: the loaded base of :meth:`describer`, when the config names one)."""
         from planner.train import finetune_lora
 
         examples = self.examples(episodes, self.config.finetune)
         if self.config.describe_scene:
             from planner.planner import VLMPlanner
 
-            # the base describes the demos' frames as it will describe the robot's at run time
+            # the describer states the demos' frames as it will state the robot's at run time
             # (no simulator record needed: real demonstrations work the same way)
-            examples = VLMPlanner(self.config, base_dir).with_scenes(examples)
+            if describer is None and self.config.describer is not None:
+                raise ValueError("planner with a describer: finetune needs the describer's loaded base")
+            examples = (describer or VLMPlanner(self.config, base_dir)).with_scenes(examples)
         return finetune_lora(self.config, base_dir, examples, out_dir, seed=seed, progress=progress,
                              checkpoint_dir=checkpoint_dir)
 
     def load(self, base_dir: Path, adapter_dir: Path | None = None, describer=None):
         """The trained planner (:class:`planner.planner.VLMPlanner`): the base, plus the adapter if given.
 
-        ``describer``: the already loaded base of ``base_dir`` to describe scenes (``describe_scene``),
-        instead of loading a second copy.
+        ``describer``: the already loaded base that describes scenes (``describe_scene``): this
+        base, instead of loading a second copy, or the base of :meth:`describer`.
         """
         from planner.planner import VLMPlanner
 
@@ -130,3 +144,7 @@ class LlavaNext8B(LlavaPlanner):
     """llama3-llava-next-8b from a local transformers-format folder (not pretrained here)."""
 
     kind = "llava_next_8b"
+
+
+def _planner_classes() -> list[type[LlavaPlanner]]:
+    return [TinyLlava, TinyLlavaNext, SmolLlava, LlavaNext8B]

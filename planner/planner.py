@@ -29,11 +29,14 @@ class VLMPlanner(Planner):
         self.cfg = cfg
         self.device = device or ("cuda" if torch.cuda.is_available() else "cpu")
         # describe_scene: the base (not the adapter, which never trained on captions) describes;
-        # ``describer``, that base already loaded, saves a second copy and its captions' time
+        # ``describer``, that base already loaded, saves a second copy and its captions' time.
+        # A config naming another describer (cfg.describer) is given that one's loaded base.
         if cfg.describe_scene and describer is not None and describer._describer is not describer:
             raise ValueError("planner describer must be a base planner (no adapter) with describe_scene")
-        self._describer = (None if not cfg.describe_scene else self if adapter_dir is None
-                           else describer or VLMPlanner(cfg, base_dir, None, self.device))
+        if cfg.describer is not None and describer is None:
+            raise ValueError("planner config names a describer: pass its loaded base as describer")
+        self._describer = (None if not cfg.describe_scene else describer if describer is not None
+                           else self if adapter_dir is None else VLMPlanner(cfg, base_dir, None, self.device))
         model, self.processor = load_model(base_dir, cfg, device=self.device)
         if adapter_dir is not None:
             from peft import PeftModel

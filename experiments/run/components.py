@@ -275,11 +275,12 @@ def pretrain_planner(planner, episodes, corpus: Sequence[str], out: Path, vocabu
 
 
 def finetune_planner(planner, base_dir: Path, episodes, seed: int, out: Path,
-                     checkpoint_dir: Path | None = None) -> None:
+                     checkpoint_dir: Path | None = None, describer_stage: Path | None = None) -> None:
     """LoRA-finetune the base planner on demonstrations carrying their decomposition and labels
-    (training saves its state in ``checkpoint_dir`` to go on after a killed job)."""
+    (training saves its state in ``checkpoint_dir`` to go on after a killed job; ``describer_stage``:
+    the base stage of the planner's describer, when it names one)."""
     path = planner.finetune(_resolve(base_dir), episodes, out, seed=seed, progress=progress_enabled(),
-                            checkpoint_dir=checkpoint_dir)
+                            checkpoint_dir=checkpoint_dir, describer=load_describer(planner, describer_stage))
     write_json_atomic(out / PLANNER_FILE, {"adapter": _relative(path, out)})
 
 
@@ -295,6 +296,11 @@ def _resolve(stage_dir: Path) -> Path:
     rel = info.get("base") or info.get("adapter")
     p = Path(rel)
     return p if p.is_absolute() else stage_dir / p
+
+
+def load_describer(planner, describer_stage: Path | None):
+    """The loaded base of ``planner``'s describer (``describer_stage``: its base stage), or None."""
+    return None if describer_stage is None else planner.describer().load(_resolve(describer_stage))
 
 
 def load_planner(planner, base_stage: Path, finetune_stage: Path | None, describer=None):

@@ -39,8 +39,12 @@ def hierarchical(run: Run, results: dict[str, Any]) -> None:
             results["decomposition"] = decomposition_block(info["decompositions"])
         view = run.learned_planner().view
 
+        described = planner_stages.describer_base_dir(run)
+
         def make_planner() -> Any:
-            return comp.load_planner(run.learned_planner(), base_dir, adapter_dir)
+            planner = run.learned_planner()
+            return comp.load_planner(planner, base_dir, adapter_dir,
+                                     describer=comp.load_describer(planner, described and described[0]))
     else:
         plans, planner_key, plan_rows = planner_stages.oracle_plans(run, seeds)
         results["oracle"] = {"expert_success": {
@@ -101,15 +105,19 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
         results["decomposition"] = decomposition_block(info["decompositions"])
     n = int(run.cfg.planner_eval.episodes_per_task)
     describes = bool(run.cfg.planner.get("describe_scene", False))
+    described = planner_stages.describer_base_dir(run)
     loaded: dict[str, Any] = {}
+    describer: dict[str, Any] = {}
 
     def planners() -> dict[str, Any]:
         if not loaded:
-            loaded["base"] = comp.load_planner(run.learned_planner(), base_dir, None)
+            planner = run.learned_planner()
+            describer["model"] = comp.load_describer(planner, described and described[0])
+            loaded["base"] = comp.load_planner(planner, base_dir, None, describer=describer["model"])
             if adapter_dir is not None:
                 # one base describes the scenes for both (same model, same greedy captions)
-                loaded["finetuned"] = comp.load_planner(run.learned_planner(), base_dir, adapter_dir,
-                                                        describer=loaded["base"])
+                loaded["finetuned"] = comp.load_planner(planner, base_dir, adapter_dir,
+                                                        describer=describer["model"] or loaded["base"])
         return loaded
 
     rows: list[dict[str, Any]] = []
@@ -117,7 +125,8 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
         eps, test_key = run.expert_labels(task, "test", n)
         # rows: 2 since each row carries its goal (image-dependent boundaries are found from it)
         spec = {"planner": planner_key, "base": info["base"], "test": test_key, "rows": 2,
-                **({"scenes": 2} if describes else {})}
+                **({"scenes": 2} if describes else {}),
+                **({"describer": info["describer"]} if "describer" in info else {})}
 
         def build(tmp: Path, eps=eps) -> None:
             examples = run.learned_planner().examples(eps)
@@ -132,7 +141,7 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
                 from planner.captions import with_true_scenes
                 from planner.prompts import clean_output
 
-                said = planners()["base"].describe([e.image for e in examples])
+                said = (describer["model"] or planners()["base"]).describe([e.image for e in examples])
                 true = [clean_output(e.scene) for e in with_true_scenes(examples, eps)]  # as answers are read
                 for row, s, t in zip(out, said, true, strict=True):
                     row.update(scene=s, scene_true=t)

@@ -66,8 +66,10 @@ def _task_decompositions(run: Run, task: str, parts: dict[str, Any], wait: bool)
     return run.cache.get_or_build("decompositions", spec, build, wait=wait)
 
 
-def base_planner_dir(run: Run) -> tuple[Path, str]:
-    """The base planner pretrained on the pretraining tasks' expert demos (the w/o-finetune one)."""
+def base_planner_dir(run: Run, planner: Any = None) -> tuple[Path, str]:
+    """The base planner pretrained on the pretraining tasks' expert demos (the w/o-finetune one);
+    ``planner``: another learned planner than the run's (its describer)."""
+    planner = planner or run.learned_planner()
     eps, data_key = run.labelled_set(
         run.pretrain_tasks, "train", int(run.cfg.data.pretrain_episodes_per_task))
     # The tokenizer also covers the evaluation tasks' goals and labeler vocabulary (the paper's
@@ -77,12 +79,17 @@ def base_planner_dir(run: Run) -> tuple[Path, str]:
         run.eval_tasks, "train", int(run.cfg.data.train_episodes_per_task))
     corpus = sorted({s for e in eps + vocab_eps for s in e.instructions}
                     | {e.goal for e in eps + vocab_eps})
-    spec = {"planner": run.learned_planner().base_spec(), "data": data_key,
-            "vocabulary": vocab_key}
+    spec = {"planner": planner.base_spec(), "data": data_key, "vocabulary": vocab_key}
     return run.cache.get_or_build(
         "planner_base", spec,
-        lambda tmp, saves: comp.pretrain_planner(run.learned_planner(), eps, corpus, tmp, vocab_eps, saves),
+        lambda tmp, saves: comp.pretrain_planner(planner, eps, corpus, tmp, vocab_eps, saves),
         uses=run.node("planner"), resumable=True)
+
+
+def describer_base_dir(run: Run) -> tuple[Path, str] | None:
+    """The base that describes scenes for the run's planner (``planner.describer``), or None."""
+    describer = run.learned_planner().describer()
+    return None if describer is None else base_planner_dir(run, describer)
 
 
 def planner_stage(run: Run) -> tuple[Path, Path | None, str, dict[str, Any]]:
@@ -91,20 +98,24 @@ def planner_stage(run: Run) -> tuple[Path, Path | None, str, dict[str, Any]]:
     Returns (base stage dir, finetune stage dir or None, planner key, info).
     """
     base_dir, base_key = base_planner_dir(run)
+    described = describer_base_dir(run)
     info: dict[str, Any] = {"base": base_key}
+    if described is not None:
+        info["describer"] = described[1]
     if not finetunes(run.cfg):
-        return base_dir, None, base_key, info
+        key = base_key if described is None else spec_key({"base": base_key, "describer": described[1]})
+        return base_dir, None, key, info
     rows, dec_key = decompositions(run, run.eval_tasks)
     info["decompositions"] = rows
     episodes = {e.name: e for t in run.eval_tasks for e in run.episodes(t, "val", *run.val_window())}
     # the validation demos as the decomposer cut them and the labeler named the pieces
     eps = [with_segments(episodes[r["episode"]], r["segments"], r["instructions"]) for r in rows]
     spec = {"planner": run.node("planner"), "base": base_key, "decompositions": dec_key,
-            "seed": int(run.cfg.seed)}
+            "seed": int(run.cfg.seed), **({} if described is None else {"describer": described[1]})}
     path, key = run.cache.get_or_build(
         "planner_finetune", spec,
         lambda tmp, saves: comp.finetune_planner(run.learned_planner(), base_dir, eps, int(run.cfg.seed), tmp,
-                                                 saves), resumable=True)
+                                                 saves, described and described[0]), resumable=True)
     info["finetune"] = key
     return base_dir, path, key, info
 

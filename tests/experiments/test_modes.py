@@ -95,3 +95,33 @@ def test_planner_eval_scores_every_held_out_boundary(tmp_path: Path):
 def test_planner_eval_refuses_the_oracle(tmp_path: Path):
     with pytest.raises(ValueError, match="planner_eval"):
         _run(["mode=planner_eval", "planner=oracle"], tmp_path / "cache", tmp_path / "out")
+
+
+def test_planner_eval_states_the_scenes_its_describer_says(tmp_path: Path):
+    """planner.describer: another config's base, trained in a stage of its own, describes the scenes."""
+    from experiments.cache.store import read_json
+    from planner.config import PlannerConfig
+    from planner.llava import TinyLlava
+    from planner.planner import VLMPlanner
+    from rdd.data.native import load_episodes
+
+    cache = tmp_path / "cache"
+    data = _run(["mode=planner_eval", "decomposer=expert", "planner_eval.episodes_per_task=1", *TINY_PLANNER,
+                 "planner=tiny_llava_describe", "+planner@planner.describer=tiny_llava_describe",
+                 "planner.describer.pretrain.epochs=2"], cache, tmp_path / "out")
+    assert data["status"] == "ok"
+    bases = {read_json(d / "spec.json")["planner"]["model"]["pretrain"]["epochs"]: d
+             for d in (cache / "planner_base").iterdir() if not d.name.startswith(".")}
+    assert sorted(bases) == [1, 2]  # the planner's own base and its describer's
+    (finetune,) = [d for d in (cache / "planner_finetune").iterdir() if not d.name.startswith(".")]
+    assert read_json(finetune / "spec.json")["describer"] == bases[2].name
+    spec = read_json(bases[2] / "spec.json")["planner"]["model"]
+    describer = VLMPlanner(PlannerConfig.from_dict(spec), bases[2])
+    planner = TinyLlava(**{k: v for k, v in spec.items() if k != "kind"})
+    rows = [r for d in (cache / "planner_eval").iterdir() if not d.name.startswith(".")
+            for r in read_json(d / "boundaries.json")]
+    test_eps = {e.name: e for d in (cache / "demos").iterdir() if (d / "test").is_dir()
+                for e in load_episodes(d / "test")}
+    examples = {(e.episode, e.frame): e for e in planner.examples(list(test_eps.values()))}
+    said = describer.describe([examples[(r["episode"], r["frame"])].image for r in rows])
+    assert rows and [r["scene"] for r in rows] == said
