@@ -39,12 +39,10 @@ def hierarchical(run: Run, results: dict[str, Any]) -> None:
             results["decomposition"] = decomposition_block(info["decompositions"])
         view = run.learned_planner().view
 
-        described = planner_stages.describer_base_dir(run)
-
         def make_planner() -> Any:
             planner = run.learned_planner()
             return comp.load_planner(planner, base_dir, adapter_dir,
-                                     describer=comp.load_describer(planner, described and described[0]))
+                                     describer=comp.load_describer(planner, info.get("describer_dir")))
     else:
         plans, planner_key, plan_rows = planner_stages.oracle_plans(run, seeds)
         results["oracle"] = {"expert_success": {
@@ -105,14 +103,13 @@ def planner_eval(run: Run, results: dict[str, Any]) -> None:
         results["decomposition"] = decomposition_block(info["decompositions"])
     n = int(run.cfg.planner_eval.episodes_per_task)
     describes = bool(run.cfg.planner.get("describe_scene", False))
-    described = planner_stages.describer_base_dir(run)
     loaded: dict[str, Any] = {}
     describer: dict[str, Any] = {}
 
     def planners() -> dict[str, Any]:
         if not loaded:
             planner = run.learned_planner()
-            describer["model"] = comp.load_describer(planner, described and described[0])
+            describer["model"] = comp.load_describer(planner, info.get("describer_dir"))
             loaded["base"] = comp.load_planner(planner, base_dir, None, describer=describer["model"])
             if adapter_dir is not None:
                 # one base describes the scenes for both (same model, same greedy captions)

@@ -95,13 +95,14 @@ def describer_base_dir(run: Run) -> tuple[Path, str] | None:
 def planner_stage(run: Run) -> tuple[Path, Path | None, str, dict[str, Any]]:
     """The planner for this run: the base, or the base LoRA-finetuned on the decomposed demos.
 
-    Returns (base stage dir, finetune stage dir or None, planner key, info).
+    Returns (base stage dir, finetune stage dir or None, planner key, info); with a describer,
+    info holds its base's key ("describer") and stage dir ("describer_dir").
     """
     base_dir, base_key = base_planner_dir(run)
     described = describer_base_dir(run)
     info: dict[str, Any] = {"base": base_key}
     if described is not None:
-        info["describer"] = described[1]
+        info["describer_dir"], info["describer"] = described
     if not finetunes(run.cfg):
         key = base_key if described is None else spec_key({"base": base_key, "describer": described[1]})
         return base_dir, None, key, info
