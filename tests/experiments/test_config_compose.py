@@ -177,6 +177,19 @@ def test_default_is_the_quick_rdd_effnet_run():
     assert cfg.wandb.mode == "offline"
 
 
+@pytest.mark.parametrize("experiment", ["table_main", "planner_eval", "necessity", "abl_alpha"])
+def test_the_paper_tables_plan_with_smollm2_on_the_tiny_describer_s_captions(experiment: str):
+    """The shared scale picks the describe-then-plan pair; `planner=NAME` still overrides it."""
+    cfg = _compose([f"experiment={experiment}", "paths.cache_dir=/tmp/unused"], hydra=True)
+    assert cfg.hydra.runtime.choices.planner == "smollm2_llava_describer"
+    assert cfg.planner._target_ == "planner.llava.SmolLlava" and cfg.planner.describe_scene
+    assert cfg.planner.describer._target_ == "planner.llava.TinyLlava" and cfg.planner.describer.describe_scene
+    picked = _compose([f"experiment={experiment}", "planner=tiny_llava", "paths.cache_dir=/tmp/unused"])
+    assert picked.planner._target_ == "planner.llava.TinyLlava" and "describer" not in picked.planner
+    quick = _compose(["paths.cache_dir=/tmp/unused"])
+    assert quick.planner._target_ == "planner.llava.TinyLlava"  # the embedded default stays quick
+
+
 @pytest.mark.parametrize("group", ["decomposer", "encoder", "index"])
 def test_hydra_options_name_the_rdd_registry_s_components(group: str):
     """conf/<group>/*.yaml target the very objects `python -m rdd` builds by name (one registry)."""
